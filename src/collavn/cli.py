@@ -1,0 +1,49 @@
+"""`collavn …` — the command line.
+
+Each command is a dataclass (fields documented, turned into ``--help`` by tyro) with a
+``run()`` method, living next to the domain it belongs to. This file only maps
+command words to those classes and imports them lazily, so ``collavn --help`` is fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import tyro
+
+from collavn.errors import CollavnError
+
+#: command words → (module, class). Add a line here to add a command.
+COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
+    ("scene", "info"): ("collavn.scenes.command", "SceneInfo",
+                        "Describe a scene: size, navigable area, components; draw its map."),
+}
+
+
+def _usage() -> str:
+    lines = ["usage: collavn COMMAND [options]   (collavn COMMAND --help for details)", "",
+             "commands:"]
+    for words, (_, _, doc) in COMMANDS.items():
+        lines.append(f"  {' '.join(words):<20} {doc}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``collavn`` console script."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    for words, (module, name, _) in sorted(COMMANDS.items(), key=lambda kv: -len(kv[0])):
+        if tuple(args[: len(words)]) == words:
+            cls = getattr(importlib.import_module(module), name)
+            command = tyro.cli(cls, args=args[len(words):], prog="collavn " + " ".join(words))
+            try:
+                return int(command.run() or 0)
+            except CollavnError as e:
+                print(f"collavn: error: {e}", file=sys.stderr)
+                return 2
+    print(_usage(), file=sys.stderr if args and args[0] not in ("-h", "--help") else sys.stdout)
+    return 0 if not args or args[0] in ("-h", "--help") else 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,25 @@
+"""Errors raised by collavn; each names the problem and the object it concerns."""
+
+
+class CollavnError(Exception):
+    """Base class for every error collavn raises on bad input."""
+
+
+class SceneError(CollavnError, ValueError):
+    """A scene cannot be loaded, built or navigated (missing file, no floor, ...)."""
+
+
+class RenderError(CollavnError, ValueError):
+    """A render request is invalid (NaN pose, unknown backend, empty batch, ...)."""
+
+
+class ActionError(CollavnError, ValueError):
+    """An action is malformed (wrong shape, NaN or inf)."""
+
+
+class DatasetError(CollavnError, ValueError):
+    """An episode file is corrupt, edited, or does not match its scene."""
+
+
+class CheckpointError(CollavnError, ValueError):
+    """A checkpoint is unreadable or was written by a different configuration."""

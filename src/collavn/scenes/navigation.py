@@ -1,0 +1,320 @@
+"""Where a robot can drive: traversability grid, components and geodesic distances.
+
+Grid convention: cell ``(r, c)`` covers ``x ∈ origin_x + [c, c+1)·res`` and
+``y ∈ origin_y + [r, r+1)·res`` — rows follow +y, columns follow +x. Images of the
+grid are flipped vertically for display so that +y points up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import skfmm
+from scipy import ndimage
+
+from collavn.errors import SceneError
+
+
+@dataclass(frozen=True)
+class NavConfig:
+    """How traversability is derived from geometry.
+
+    Attributes:
+        resolution: Grid cell size in metres (the paper's traversability map: 0.10 m).
+        agent_radius: Robot body radius in metres (LoCoBot: 0.18 m); free space is
+            eroded by it, so a navigable cell is a valid position for the robot centre.
+        agent_height: Geometry between ``step_height`` and this height above the
+            floor blocks the robot (its camera mast reaches 0.9 m).
+        step_height: Bumps lower than this (rugs, thresholds) do not block.
+        sample_step: Spacing in metres of the points sampled on triangles to find
+            obstacles; smaller than a table leg so thin legs are not missed.
+    """
+
+    resolution: float = 0.10
+    agent_radius: float = 0.18
+    agent_height: float = 1.0
+    step_height: float = 0.05
+    sample_step: float = 0.03
+
+
+@dataclass(frozen=True, eq=False)
+class NavGrid:
+    """Traversability and connectivity of one floor.
+
+    Attributes:
+        config: The parameters it was computed with.
+        origin: ``(2,)`` world (x, y) of the grid's lower-left corner.
+        floor: ``(H, W)`` bool, a floor surface is present.
+        free: ``(H, W)`` bool, floor present and nothing in the robot's height band.
+        navigable: ``(H, W)`` bool, free and at least ``agent_radius`` from any
+            non-free cell: valid positions of the robot centre.
+        components: ``(H, W)`` int32 connected-component label of navigable cells
+            (8-connectivity), 0 elsewhere; labels sorted by size, 1 = largest.
+        clearance: ``(H, W)`` float32 metres from the cell centre to the nearest
+            non-free cell centre.
+    """
+
+    config: NavConfig
+    origin: np.ndarray
+    floor: np.ndarray
+    free: np.ndarray
+    navigable: np.ndarray
+    components: np.ndarray
+    clearance: np.ndarray
+
+    # ------------------------------------------------------------ construction
+    @classmethod
+    def from_triangles(cls, triangles: np.ndarray, floor_z: float, config: NavConfig,
+                       name: str = "scene") -> NavGrid:
+        """Compute the grid from ``(F, 3, 3)`` triangles for the floor at ``floor_z``."""
+        res = config.resolution
+        lo = triangles.reshape(-1, 3).min(axis=0)
+        hi = triangles.reshape(-1, 3).max(axis=0)
+        origin = np.floor(lo[:2] / res) * res - res
+        shape = (int(np.ceil((hi[1] - origin[1]) / res)) + 2,
+                 int(np.ceil((hi[0] - origin[0]) / res)) + 2)
+        floor = _floor_cells(triangles, floor_z, origin, shape, config)
+        if not floor.any():
+            raise SceneError(f"{name}: no floor surface at height z={floor_z:.2f} m")
+        blocked = _obstacle_cells(triangles, floor_z, origin, shape, config)
+        free = floor & ~blocked
+        return cls.from_free(config, origin, floor, free, name=name)
+
+    @classmethod
+    def from_free(cls, config: NavConfig, origin: np.ndarray, floor: np.ndarray,
+                  free: np.ndarray, name: str = "scene") -> NavGrid:
+        """Erode ``free`` by the robot radius and label connected components."""
+        res = config.resolution
+        clearance = (ndimage.distance_transform_edt(free) * res).astype(np.float32)
+        navigable = clearance - 0.5 * res >= config.agent_radius - 1e-6
+        if not navigable.any():
+            raise SceneError(
+                f"{name}: no navigable area: no floor region is wide enough for a robot "
+                f"of radius {config.agent_radius} m")
+        labels, count = ndimage.label(navigable, structure=np.ones((3, 3), dtype=bool))
+        sizes = np.bincount(labels.ravel(), minlength=count + 1)[1:]
+        order = np.argsort(-sizes, kind="stable")
+        relabel = np.zeros(count + 1, dtype=np.int32)
+        relabel[order + 1] = np.arange(1, count + 1, dtype=np.int32)
+        return cls(config=config, origin=np.asarray(origin, dtype=np.float64),
+                   floor=floor, free=free, navigable=navigable,
+                   components=relabel[labels], clearance=clearance)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Arrays for saving; inverse of :meth:`from_arrays`."""
+        cfg = asdict(self.config)
+        return {"nav_origin": self.origin, "nav_floor": self.floor, "nav_free": self.free,
+                "nav_config": np.array([cfg[k] for k in sorted(cfg)], dtype=np.float64)}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> NavGrid:
+        """Rebuild from :meth:`to_arrays` output (components are recomputed: cheap)."""
+        keys = sorted(asdict(NavConfig()))
+        config = NavConfig(**{k: float(v) for k, v in zip(keys, arrays["nav_config"],
+                                                           strict=True)})
+        return cls.from_free(config, arrays["nav_origin"], arrays["nav_floor"],
+                             arrays["nav_free"])
+
+    # ----------------------------------------------------------------- queries
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(H, W)`` of the grid."""
+        return self.navigable.shape  # type: ignore[return-value]
+
+    @property
+    def resolution(self) -> float:
+        """Cell size in metres."""
+        return self.config.resolution
+
+    def to_cell(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows and columns of the cells containing ``(..., 2)`` points (unclipped)."""
+        xy = np.asarray(xy, dtype=np.float64)
+        c = np.floor((xy[..., 0] - self.origin[0]) / self.resolution).astype(np.int64)
+        r = np.floor((xy[..., 1] - self.origin[1]) / self.resolution).astype(np.int64)
+        return r, c
+
+    def cell_centers(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """World ``(..., 2)`` centres of the given cells."""
+        x = self.origin[0] + (np.asarray(cols) + 0.5) * self.resolution
+        y = self.origin[1] + (np.asarray(rows) + 0.5) * self.resolution
+        return np.stack([x, y], axis=-1)
+
+    def lookup(self, grid: np.ndarray, xy: np.ndarray, outside: float | bool = 0) -> np.ndarray:
+        """Value of ``grid`` at the cells containing ``(..., 2)`` points."""
+        r, c = self.to_cell(xy)
+        h, w = self.shape
+        inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+        out = np.full(r.shape, outside, dtype=grid.dtype)
+        out[inside] = grid[r[inside], c[inside]]
+        return out
+
+    def is_navigable(self, xy: np.ndarray) -> np.ndarray:
+        """Whether the robot centre may stand at each of the ``(..., 2)`` points."""
+        return self.lookup(self.navigable, xy, outside=False)
+
+    def component_at(self, xy: np.ndarray) -> np.ndarray:
+        """Component label at each point (0 = not navigable)."""
+        return self.lookup(self.components, xy, outside=0)
+
+    def component_sizes(self) -> np.ndarray:
+        """Area in m² of each component, index 0 = component 1 (the largest)."""
+        counts = np.bincount(self.components.ravel())[1:]
+        return counts * self.resolution**2
+
+    def geodesic_field(self, goal: np.ndarray) -> GeodesicField:
+        """Fast-marching distance field to ``goal`` within the goal's component."""
+        goal = np.asarray(goal, dtype=np.float64).reshape(2)
+        label = int(self.component_at(goal))
+        if label == 0:
+            raise SceneError(f"goal ({goal[0]:.2f}, {goal[1]:.2f}) is not on navigable floor")
+        return GeodesicField(self, goal, _fast_march(self, goal, self.components == label))
+
+
+class GeodesicField:
+    """Geodesic distance from every navigable cell to one goal point.
+
+    ``grid`` is ``(H, W)`` float64 metres from each cell centre to the goal through
+    navigable space; ``inf`` outside the goal's component.
+    """
+
+    def __init__(self, nav: NavGrid, goal: np.ndarray, grid: np.ndarray) -> None:
+        self.nav = nav
+        self.goal = goal
+        self.grid = grid
+
+    def distance(self, xy: np.ndarray) -> np.ndarray:
+        """Geodesic distance from ``(..., 2)`` points to the goal (``inf`` if cut off).
+
+        The value is the minimum over the 2×2 surrounding cell centres of (cell
+        distance + straight-line distance to that centre), exact within one cell.
+        """
+        xy = np.asarray(xy, dtype=np.float64)
+        res = self.nav.resolution
+        fx = (xy[..., 0] - self.nav.origin[0]) / res - 0.5
+        fy = (xy[..., 1] - self.nav.origin[1]) / res - 0.5
+        c0, r0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
+        h, w = self.nav.shape
+        best = np.full(xy.shape[:-1], np.inf)
+        for dr in (0, 1):
+            for dc in (0, 1):
+                r, c = r0 + dr, c0 + dc
+                ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+                d = np.full(best.shape, np.inf)
+                d[ok] = self.grid[r[ok], c[ok]]
+                centre = self.nav.cell_centers(r, c)
+                best = np.minimum(best, d + np.linalg.norm(xy - centre, axis=-1))
+        near = np.linalg.norm(xy - self.goal, axis=-1)
+        # Within one cell of the goal the straight line is the geodesic.
+        return np.where(near <= res, np.minimum(best, near), best)
+
+    def path_from(self, start: np.ndarray) -> np.ndarray:
+        """``(K, 2)`` waypoints from ``start`` to the goal by steepest descent.
+
+        Raises:
+            SceneError: if ``start`` cannot reach the goal.
+        """
+        r, c = (int(v) for v in self.nav.to_cell(start))
+        h, w = self.nav.shape
+        if not (0 <= r < h and 0 <= c < w) or not np.isfinite(self.grid[r, c]):
+            raise SceneError(f"start ({start[0]:.2f}, {start[1]:.2f}) cannot reach the goal")
+        cells = [(r, c)]
+        padded = np.pad(self.grid, 1, constant_values=np.inf)
+        for _ in range(h * w):
+            window = padded[r:r + 3, c:c + 3]
+            k = int(np.argmin(window))
+            nr, nc = r + k // 3 - 1, c + k % 3 - 1
+            if window.flat[k] >= self.grid[r, c]:
+                break
+            r, c = nr, nc
+            cells.append((r, c))
+        rows, cols = np.array(cells).T
+        points = self.nav.cell_centers(rows, cols)
+        return np.concatenate([np.asarray(start, dtype=np.float64).reshape(1, 2),
+                               points[1:], self.goal.reshape(1, 2)])
+
+
+# ----------------------------------------------------------------- internals
+def _fast_march(nav: NavGrid, goal: np.ndarray, region: np.ndarray) -> np.ndarray:
+    res = nav.resolution
+    rows, cols = np.mgrid[0:nav.shape[0], 0:nav.shape[1]]
+    centres = nav.cell_centers(rows, cols)
+    radius = 0.75 * res  # zero level set: a small circle around the goal
+    phi = np.linalg.norm(centres - goal, axis=-1) - radius
+    out = np.full(nav.shape, np.inf)
+    if not (phi[region] > 0).any() or not (phi[region] <= 0).any():
+        # Degenerate: the component is tiny; straight-line distance is exact there.
+        out[region] = phi[region] + radius
+        return out
+    d = skfmm.distance(np.ma.MaskedArray(phi, mask=~region), dx=res, order=2)
+    out[region] = np.asarray(d.filled(np.inf))[region] + radius
+    return out
+
+
+def _floor_cells(triangles: np.ndarray, floor_z: float, origin: np.ndarray,
+                 shape: tuple[int, int], config: NavConfig) -> np.ndarray:
+    """Cells with floor underfoot and headroom above, at ≥ 2 of 4 sample points.
+
+    A vertical ray from just above the floor must hit a surface within a few
+    centimetres going down, and nothing below ``agent_height`` going up (this rules
+    out space under table tops). A cell whose upward ray meets the back of an
+    upward-facing surface is inside a closed solid (a wardrobe) and is not floor.
+    """
+    import embreex.mesh_construction as mesh_construction
+    import embreex.rtcore_scene as rtcore_scene
+
+    scene = rtcore_scene.EmbreeScene()
+    mesh_construction.TriangleMesh(scene, np.ascontiguousarray(triangles, dtype=np.float32))
+    h, w = shape
+    res = config.resolution
+    rows, cols = np.mgrid[0:h, 0:w]
+    z0 = floor_z + config.step_height - 0.01
+    good = np.zeros(h * w, dtype=np.int32)
+    inside = np.zeros(h * w, dtype=np.int32)
+    for oy in (0.25 * res, 0.75 * res):
+        for ox in (0.25 * res, 0.75 * res):
+            o = np.stack([origin[0] + cols.ravel() * res + ox,
+                          origin[1] + rows.ravel() * res + oy,
+                          np.full(h * w, z0)], axis=1).astype(np.float32)
+            down = np.zeros_like(o)
+            down[:, 2] = -1.0
+            below = scene.run(o, down, output=1)
+            above = scene.run(o, -down, output=1)
+            floor = (below["geomID"] >= 0) & (below["tfar"] <= config.step_height + 0.1)
+            clear = (above["geomID"] < 0) | (above["tfar"] > config.agent_height - 0.04)
+            good += floor & clear
+            # Looking up at the back of an upward-facing surface: inside a solid.
+            inside += (above["geomID"] >= 0) & (above["Ng"][:, 2] > 0)
+    good_cells = good >= 2
+    solid = inside >= 2
+    # Scans with inverted ceilings would look "inside" everywhere: ignore the rule then.
+    if (good_cells & ~solid).sum() >= 0.2 * good_cells.sum():
+        good_cells &= ~solid
+    return good_cells.reshape(shape)
+
+
+def _obstacle_cells(triangles: np.ndarray, floor_z: float, origin: np.ndarray,
+                    shape: tuple[int, int], config: NavConfig) -> np.ndarray:
+    """Cells containing any surface point in the robot's height band."""
+    lo, hi = floor_z + config.step_height, floor_z + config.agent_height
+    tz = triangles[:, :, 2]
+    band = triangles[(tz.max(axis=1) >= lo) & (tz.min(axis=1) <= hi)].astype(np.float64)
+    blocked = np.zeros(shape, dtype=bool)
+    if len(band) == 0:
+        return blocked
+    e1, e2 = band[:, 1] - band[:, 0], band[:, 2] - band[:, 0]
+    longest = np.max(np.linalg.norm(np.stack([e1, e2, band[:, 2] - band[:, 1]]), axis=2), axis=0)
+    n = np.clip(np.ceil(longest / config.sample_step), 1, None).astype(np.int64)
+    res = config.resolution
+    for k in np.unique(n):
+        sel = n == k
+        i, j = np.nonzero(np.add.outer(np.arange(k + 1), np.arange(k + 1)) <= k)
+        a, b = i / k, j / k
+        pts = (band[sel, None, 0] + a[None, :, None] * e1[sel, None]
+               + b[None, :, None] * e2[sel, None]).reshape(-1, 3)
+        pts = pts[(pts[:, 2] >= lo) & (pts[:, 2] <= hi)]
+        c = np.floor((pts[:, 0] - origin[0]) / res).astype(np.int64)
+        r = np.floor((pts[:, 1] - origin[1]) / res).astype(np.int64)
+        ok = (r >= 0) & (r < shape[0]) & (c >= 0) & (c < shape[1])
+        blocked[r[ok], c[ok]] = True
+    return blocked
