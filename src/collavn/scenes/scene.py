@@ -30,8 +30,10 @@ class Scene:
         name: Human-readable identity, e.g. ``procedural:3`` or a file name.
         vertices: ``(V, 3)`` float32 vertex positions in metres, Z up.
         faces: ``(F, 3)`` int32 vertex indices per triangle.
-        face_uvs: ``(F, 3, 2)`` float32 texture coordinates of each triangle corner;
-            textures tile (coordinates wrap modulo 1).
+        face_uvs: ``(F, 3, 2)`` float32 texture coordinates of each triangle corner,
+            OpenGL convention (u to the right, v up); textures tile (coordinates
+            wrap modulo 1). The texel for ``(u, v)`` is
+            ``textures[m, S - 1 - floor(frac(v)·S), floor(frac(u)·S)]``.
         face_material: ``(F,)`` int32 index into ``textures``.
         face_tint: ``(F, 3)`` uint8 colour multiplied with the texture sample
             (material base colour or averaged vertex colours; white for pure textures).

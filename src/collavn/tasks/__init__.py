@@ -1,0 +1,69 @@
+"""The three task settings: goals, reward, success — pure functions over batches.
+
+- *CommonGoal*: N agents, one shared goal image.
+- *SpecificGoal*: N agents, N pairwise distinct goal images.
+- *Ad-hoCoop*: a shared goal; trained with N agents, evaluated with N' ≠ N. The
+  rules are CommonGoal's; only the number of agents at evaluation differs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from collavn.errors import CollavnError
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """Rules of one task setting (DESIGN.md numbers by default).
+
+    Attributes:
+        name: ``commongoal``, ``specificgoal`` or ``adhocoop``.
+        shared_goal: All agents share one goal (CommonGoal, Ad-hoCoop).
+        success_distance: An agent succeeds at geodesic distance ≤ this (metres).
+        max_steps: Episode length ``T``; agents still running then are truncated.
+        progress_weight: Reward per metre of geodesic progress.
+        collision_penalty: Subtracted on every step with a collision.
+        gamma: Discount factor used by learners.
+    """
+
+    name: str
+    shared_goal: bool
+    success_distance: float = 1.0
+    max_steps: int = 80
+    progress_weight: float = 1.0
+    collision_penalty: float = 0.05
+    gamma: float = 0.99
+
+
+TASKS: dict[str, TaskSpec] = {
+    "commongoal": TaskSpec("commongoal", shared_goal=True),
+    "specificgoal": TaskSpec("specificgoal", shared_goal=False),
+    "adhocoop": TaskSpec("adhocoop", shared_goal=True),
+}
+
+
+def get_task(name: str) -> TaskSpec:
+    """The :class:`TaskSpec` called ``name`` (case-insensitive, ``-``/``_`` ignored)."""
+    key = name.lower().replace("-", "").replace("_", "")
+    if key not in TASKS:
+        raise CollavnError(f"unknown task {name!r}; expected one of {', '.join(TASKS)}")
+    return TASKS[key]
+
+
+def step_reward(prev_distance: np.ndarray, distance: np.ndarray, collided: np.ndarray,
+                running: np.ndarray, task: TaskSpec) -> np.ndarray:
+    """Per-agent reward ``w·(d_{t-1} − d_t) − c·[collision]``, zero for finished agents.
+
+    All arrays ``(E, N)``; distances are geodesic metres to each agent's own goal.
+    """
+    r = task.progress_weight * (prev_distance - distance)
+    r = r - task.collision_penalty * collided.astype(np.float64)
+    return np.where(running, r, 0.0)
+
+
+def succeeded(distance: np.ndarray, task: TaskSpec) -> np.ndarray:
+    """``(E, N)`` bool: geodesic distance to the goal within the success radius."""
+    return distance <= task.success_distance

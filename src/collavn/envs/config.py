@@ -1,0 +1,111 @@
+"""Configuration of the environments and where their episodes come from."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from collavn.datasets.episode import Episode
+from collavn.errors import CollavnError
+from collavn.scenes.scene import Scene
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """What the agents sense and how episodes run.
+
+    Attributes:
+        task: ``commongoal``, ``specificgoal`` or ``adhocoop``.
+        num_agents: Agents per environment (N).
+        panorama_width: Panorama width in pixels (360°); paper 512.
+        panorama_height: Panorama height (±45°); paper 128.
+        goal_size: Goal image side (pinhole 90° FOV); paper 128.
+        camera_height: Camera height above the floor in metres (paper: 0.9).
+        depth: Also return the panorama's depth (metres).
+        gt_map: Also return ground-truth egocentric occupancy/explored maps projected
+            from the depth (for supervising a map module; never a policy input).
+        gt_map_size: Side in cells of the ground-truth map (10 cm cells).
+        odometry_noise: Std of Gaussian noise added to ``pose_delta`` (metres and
+            radians); 0 = noise-free (default).
+        max_steps: Episode length T.
+        difficulty: Difficulty of episodes sampled on the fly (``easy``, ``medium``,
+            ``hard`` or ``mixed``); unused when episodes come from a dataset.
+        backend: Renderer backend: ``embree`` (CPU) or ``warp`` (CUDA or CPU).
+        device: Renderer device for the ``warp`` backend (``cpu``, ``cuda:0``).
+        render_threads: CPU threads for the ``embree`` backend.
+    """
+
+    task: str = "commongoal"
+    num_agents: int = 2
+    panorama_width: int = 512
+    panorama_height: int = 128
+    goal_size: int = 128
+    camera_height: float = 0.9
+    depth: bool = False
+    gt_map: bool = False
+    gt_map_size: int = 64
+    odometry_noise: float = 0.0
+    max_steps: int = 80
+    difficulty: str = "mixed"
+    backend: str = "embree"
+    device: str = "cpu"
+    render_threads: int = 2
+
+    def __post_init__(self) -> None:
+        if self.num_agents < 1:
+            raise CollavnError(f"num_agents must be ≥ 1, got {self.num_agents}")
+        if min(self.panorama_width, self.panorama_height, self.goal_size) < 1:
+            raise CollavnError("image sizes must be positive")
+        if self.max_steps < 1:
+            raise CollavnError(f"max_steps must be ≥ 1, got {self.max_steps}")
+        if self.difficulty not in ("easy", "medium", "hard", "mixed"):
+            raise CollavnError(f"unknown difficulty {self.difficulty!r}")
+
+
+class EpisodeSource:
+    """Episodes for one scene: a fixed list (in order, cycling) or sampled on the fly."""
+
+    def __init__(self, scene: Scene, config: EnvConfig,
+                 episodes: Sequence[Episode] | None = None) -> None:
+        self.scene, self.config = scene, config
+        self.episodes = list(episodes) if episodes is not None else None
+        self._next = 0
+        self._forced: list[Episode] = []
+        if self.episodes is not None:
+            if not self.episodes:
+                raise CollavnError(f"no episodes given for scene {scene.name}")
+            for ep in self.episodes:
+                if ep.scene.content_hash != scene.content_hash:
+                    raise CollavnError(
+                        f"episode {ep.episode_id} was made for scene {ep.scene.name} "
+                        f"({ep.scene.content_hash[:12]}), not {scene.name} "
+                        f"({scene.content_hash[:12]})")
+                if ep.num_agents != config.num_agents:
+                    raise CollavnError(f"episode {ep.episode_id} has {ep.num_agents} "
+                                       f"agents, the env has {config.num_agents}")
+
+    def push(self, episode: Episode) -> None:
+        """Make ``episode`` the next one returned (e.g. ``reset(options=...)``)."""
+        if episode.scene.content_hash != self.scene.content_hash:
+            raise CollavnError(f"episode {episode.episode_id} was made for scene "
+                               f"{episode.scene.name}, not {self.scene.name}")
+        self._forced.append(episode)
+
+    def next(self, rng: np.random.Generator) -> Episode:
+        """The next episode: a pushed one, else dataset order, else a fresh sample."""
+        if self._forced:
+            return self._forced.pop(0)
+        if self.episodes is not None:
+            ep = self.episodes[self._next % len(self.episodes)]
+            self._next += 1
+            return ep
+        from collavn.datasets.generator import sample_episodes
+
+        difficulty = self.config.difficulty
+        if difficulty == "mixed":
+            difficulty = str(rng.choice(["easy", "medium", "hard"]))
+        task = "commongoal" if self.config.task == "adhocoop" else self.config.task
+        return sample_episodes(self.scene, task, self.config.num_agents, difficulty, 1,
+                               rng)[0]

@@ -1,0 +1,192 @@
+"""A batched vector environment for training: ``E`` envs × ``N`` agents, arrays inside.
+
+Environments may live in different scenes (env ``i`` uses ``scenes[i % len(scenes)]``);
+all agents of all envs of one scene are rendered in one batched call.
+
+Contract (Gymnasium vocabulary):
+
+- ``step(actions (E, N, 2))`` returns ``(obs, reward (E, N), terminated (E, N),
+  truncated (E, N), info)``. ``terminated`` is True on the step an agent reached its
+  goal, ``truncated`` on the step it hit ``max_steps`` without succeeding; an agent
+  that finished stays in place (still an obstacle), gets reward 0 and
+  ``obs["active"] = False`` until its episode ends.
+- An env's episode ends when all its agents have finished. **Autoreset mode:
+  ``AutoresetMode.SAME_STEP``** — the env is reset within the same ``step`` call:
+  the observation returned for it is the first of the new episode, and
+  ``info["episode_records"]`` carries the finished episode's per-agent records
+  (:class:`~collavn.metrics.AgentRecord`). ``info["episode_done"] (E,)`` marks those envs.
+  The finished episode's last observation is not returned; a learner that
+  bootstraps truncated agents should use the value of the previous observation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from collavn.datasets.episode import Episode
+from collavn.envs.config import EnvConfig, EpisodeSource
+from collavn.envs.sensors import Sensors
+from collavn.errors import CollavnError
+from collavn.metrics import AgentRecord
+from collavn.scenes.scene import Scene
+from collavn.simulation.kinematics import AgentParams
+from collavn.simulation.world import World, relative_pose
+from collavn.tasks import get_task
+
+AUTORESET_MODE = "SAME_STEP"
+
+
+class VectorEnv:
+    """``E`` environments stepped together; see the module docstring for the contract.
+
+    Args:
+        scenes: One or more scenes; env ``i`` lives in ``scenes[i % len(scenes)]``.
+        num_envs: ``E``.
+        config: Sensors, task and episode settings.
+        episodes: Optional fixed episodes per scene (same order as ``scenes``); by
+            default episodes are sampled on the fly from the env's random generator.
+        params: Robot and timing.
+        seed: Seeds the generator (episode sampling, odometry noise).
+        autoreset: Reset finished envs within ``step`` (``SAME_STEP``). With False a
+            finished env keeps its final state until :meth:`reset` (the PettingZoo
+            wrapper uses this).
+    """
+
+    def __init__(self, scenes: Sequence[Scene], num_envs: int, config: EnvConfig,
+                 episodes: Sequence[Sequence[Episode]] | None = None,
+                 params: AgentParams | None = None, seed: int | None = None,
+                 autoreset: bool = True) -> None:
+        if not scenes:
+            raise CollavnError("VectorEnv needs at least one scene")
+        if num_envs < 1:
+            raise CollavnError(f"num_envs must be ≥ 1, got {num_envs}")
+        if episodes is not None and len(episodes) != len(scenes):
+            raise CollavnError("give one episode list per scene")
+        self.config, self.num_envs, self.num_agents = config, num_envs, config.num_agents
+        self.autoreset = autoreset
+        self.task = get_task(config.task)
+        if config.max_steps != self.task.max_steps:
+            from dataclasses import replace
+
+            self.task = replace(self.task, max_steps=config.max_steps)
+        self.params = params or AgentParams()
+        self.rng = np.random.default_rng(seed)
+        self.groups: list[tuple[np.ndarray, World, Sensors, EpisodeSource]] = []
+        env_scene = np.arange(num_envs) % len(scenes)
+        for s, scene in enumerate(scenes):
+            envs = np.flatnonzero(env_scene == s)
+            if len(envs) == 0:
+                continue
+            world = World(scene, len(envs), config.num_agents, self.task, self.params)
+            source = EpisodeSource(scene, config, None if episodes is None else episodes[s])
+            self.groups.append((envs, world, Sensors(scene, config), source))
+        self._goal_images = np.zeros((num_envs, config.num_agents, 3, config.goal_size,
+                                      config.goal_size), dtype=np.uint8)
+        self._last_pose = np.zeros((num_envs, config.num_agents, 3))
+
+    # ---------------------------------------------------------------- public
+    def reset(self, seed: int | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Start a new episode in every env; returns ``(obs, info)``."""
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        for _, world, sensors, source in self.groups:
+            local = np.arange(world.num_envs)
+            self._start(world, sensors, source, local)
+        return self._observe(), {"episode_done": np.zeros(self.num_envs, dtype=bool)}
+
+    def step(self, actions: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray,
+                                                 np.ndarray, dict[str, Any]]:
+        """Apply ``(E, N, 2)`` actions; see the module docstring."""
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != (self.num_envs, self.num_agents, 2):
+            from collavn.errors import ActionError
+
+            raise ActionError(f"actions must have shape ({self.num_envs}, {self.num_agents}, "
+                              f"2), got {actions.shape}")
+        e, n = self.num_envs, self.num_agents
+        reward, terminated = np.zeros((e, n), np.float32), np.zeros((e, n), bool)
+        truncated, collided = np.zeros((e, n), bool), np.zeros((e, n), bool)
+        done = np.zeros(e, dtype=bool)
+        records: list[AgentRecord] = []
+        for envs, world, sensors, source in self.groups:
+            out = world.step(actions[envs])
+            reward[envs], terminated[envs] = out.reward, out.terminated
+            truncated[envs], collided[envs] = out.truncated, out.collided
+            finished = np.flatnonzero(~world.running.any(axis=1) & out.any_finished)
+            if len(finished):
+                done[envs[finished]] = True
+                records += episode_records(world, finished)
+                if self.autoreset:
+                    self._start(world, sensors, source, finished)
+        info = {"collided": collided, "episode_done": done, "episode_records": records}
+        return self._observe(), reward, terminated, truncated, info
+
+    def world_of(self, env: int) -> tuple[World, int]:
+        """The world holding env ``env`` and its local index there."""
+        for envs, world, _, _ in self.groups:
+            hit = np.flatnonzero(envs == env)
+            if len(hit):
+                return world, int(hit[0])
+        raise IndexError(f"no env {env}")
+
+    # -------------------------------------------------------------- internals
+    def _start(self, world: World, sensors: Sensors, source: EpisodeSource,
+               local: np.ndarray) -> None:
+        envs = next(g[0] for g in self.groups if g[1] is world)
+        episodes = [source.next(self.rng) for _ in local]
+        world.reset_envs(list(local), episodes)
+        goal_poses = np.concatenate([world.goal[local], world.goal_yaw[local][..., None]], -1)
+        self._goal_images[envs[local]] = sensors.goal_images(goal_poses)
+        self._last_pose[envs[local]] = world.poses()[local]
+
+    def _observe(self) -> dict[str, np.ndarray]:
+        e, n, cfg = self.num_envs, self.num_agents, self.config
+        obs: dict[str, np.ndarray] = {
+            "panorama": np.zeros((e, n, 3, cfg.panorama_height, cfg.panorama_width), np.uint8),
+            "goal": self._goal_images.copy(),
+            "pose_delta": np.zeros((e, n, 3), np.float32),
+            "pose": np.zeros((e, n, 3), np.float32),
+            "active": np.zeros((e, n), bool),
+            "step": np.zeros((e, n), np.int64),
+        }
+        if cfg.depth or cfg.gt_map:
+            obs["depth"] = np.zeros((e, n, cfg.panorama_height, cfg.panorama_width), np.float32)
+        if cfg.gt_map:
+            obs["gt_map"] = np.zeros((e, n, 2, cfg.gt_map_size, cfg.gt_map_size), np.float32)
+        for envs, world, sensors, _ in self.groups:
+            poses = world.poses()
+            views = sensors.panoramas(poses)
+            obs["panorama"][envs] = views.rgb
+            if "depth" in obs:
+                obs["depth"][envs] = views.depth
+            if cfg.gt_map:
+                obs["gt_map"][envs] = sensors.gt_maps(poses, views.depth)
+            delta = relative_pose(self._last_pose[envs], poses)
+            if cfg.odometry_noise > 0:
+                delta = delta + self.rng.normal(0.0, cfg.odometry_noise, delta.shape)
+            obs["pose_delta"][envs] = delta
+            obs["pose"][envs] = world.relative_to_start()
+            obs["active"][envs] = world.running
+            obs["step"][envs] = world.steps
+            self._last_pose[envs] = poses
+        return obs
+
+
+def episode_records(world: World, local_envs: np.ndarray) -> list[AgentRecord]:
+    """Per-agent records of the episodes in ``local_envs`` of ``world``."""
+    out = []
+    for e in local_envs:
+        ep = world.episodes[e]
+        assert ep is not None
+        for a in range(world.num_agents):
+            out.append(AgentRecord(
+                episode_id=ep.episode_id, agent=a, difficulty=ep.difficulty,
+                success=bool(world.success[e, a]), steps=int(world.steps[e, a]),
+                path_length=float(world.path_length[e, a]),
+                start_distance=float(world.start_distance[e, a]),
+                final_distance=float(world.distance[e, a]),
+                collisions=int(world.collisions[e, a])))
+    return out

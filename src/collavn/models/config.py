@@ -1,0 +1,155 @@
+"""Configuration of the agent model: frozen dataclasses with the `paper` and `cpu` presets.
+
+`ModelConfig.paper()` follows Sec. 4 of the paper (ResNet18 → 1024-d, a 384×384 map at
+10 cm, 256-d queries/keys, 2048-d values); `ModelConfig.cpu()` is sized for training on
+a laptop CPU (small CNN, 32×128 panoramas, a 96×96 map at 20 cm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+EncoderKind = Literal["resnet18", "small"]
+CommVariant = Literal["none", "handshake", "memory"]
+GateMode = Literal["auto", "soft", "hard"]
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """Map building module F_map and the map encoder.
+
+    Attributes:
+        size: Cells per side of the episode map S_t (paper 384 = 38.4 m at 10 cm).
+        resolution: Metres per map cell (paper 0.10).
+        local_size: Cells per side of the local patch predicted from one panorama,
+            agent at its centre, heading up; it covers ``local_size · resolution``
+            metres, which must equal the extent of the env's ``gt_map``.
+        feature_channels: Visual-feature channels of the coarse feature grid (paper 256).
+        feature_size: Cells per side of the feature grid over the same extent as the map
+            (paper 13 → 2.95 m cells, the paper's "3 m grid").
+        encoder: Trunk of the local-patch predictor (its own weights, not shared).
+        hidden: Width of the predictor's bottleneck vector.
+        use_depth: Feed the depth panorama to the predictor as a 4th channel.
+        max_depth: Depth (metres) that maps to 1.0 when ``use_depth``.
+        agent_radius: Radius in metres of the disk drawn in the location channels.
+        encoder_size: Cells per side of the egocentric window the map encoder sees;
+            the window covers the whole map extent, rotated so the heading is up.
+        embed_dim: Size of the map vector given to the policy.
+        detach: Stop policy gradients at the map (the paper trains F_map only with its
+            supervised loss).
+    """
+
+    size: int = 384
+    resolution: float = 0.10
+    local_size: int = 64
+    feature_channels: int = 256
+    feature_size: int = 13
+    encoder: EncoderKind = "small"
+    hidden: int = 512
+    use_depth: bool = False
+    max_depth: float = 10.0
+    agent_radius: float = 0.2
+    encoder_size: int = 64
+    embed_dim: int = 256
+    detach: bool = True
+
+    def __post_init__(self) -> None:
+        if self.local_size % 8 or self.encoder_size % 8:
+            raise ValueError("local_size and encoder_size must be multiples of 8")
+        if self.size < self.local_size or self.resolution <= 0:
+            raise ValueError("map size must be >= local_size and resolution > 0")
+
+
+@dataclass(frozen=True)
+class CommConfig:
+    """Memory-augmented handshake communication (request / match / select / store).
+
+    Attributes:
+        variant: ``none`` (no messages, IPPO), ``handshake`` (current step only, the
+            paper's "w/o mem") or ``memory`` (the paper's method).
+        query_dim: Size of queries μ (paper 256).
+        key_dim: Size of keys κ (paper 256).
+        value_dim: Size of values υ and of the message ω (paper 2048).
+        memory_slots: Entries kept per agent for ``memory``: the whole episode by default
+            (T = 80); a smaller number gives a FIFO of fixed capacity.
+        store_interval: Store one (κ, υ) every this many steps (1 = every step).
+        threshold: Selection threshold η; ``None`` means 1/N with N the active agents
+            of the environment.
+        gate: ``hard`` zeroes scores ≤ η; ``soft`` multiplies them by
+            sigmoid((s − η)/temperature) so gradients flow; ``auto`` is soft in
+            ``train()`` mode and hard in ``eval()`` mode.
+        temperature: Width of the soft gate.
+        bytes_per_float: Wire size of one transmitted number (float32 = 4).
+    """
+
+    variant: CommVariant = "memory"
+    query_dim: int = 256
+    key_dim: int = 256
+    value_dim: int = 2048
+    memory_slots: int = 80
+    store_interval: int = 1
+    threshold: float | None = None
+    gate: GateMode = "auto"
+    temperature: float = 0.05
+    bytes_per_float: int = 4
+
+    def __post_init__(self) -> None:
+        if self.memory_slots < 1 or self.store_interval < 1:
+            raise ValueError("memory_slots and store_interval must be >= 1")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The whole agent: encoders → map → communication → GRU core → actor / critic.
+
+    Attributes:
+        encoder: Visual trunk of the panorama and goal encoders.
+        embed_dim: Size of the panorama and goal embeddings (paper 1024).
+        panorama_shape: ``(C, H, W)`` of the panorama (cylindrical, heading at the
+            centre column).
+        goal_shape: ``(C, H, W)`` of the goal image.
+        weights_path: Local file with torchvision ImageNet ResNet18 weights to load
+            into the trunks; ``None`` keeps the random initialisation.
+        hidden_size: Hidden size of the actor GRU.
+        critic_hidden_size: Hidden size of the critic GRU.
+        critic_full_input: The critic also sees the map vector and the goal embedding
+            (the paper's V sees only (O, ω)).
+        log_std_init: Initial log standard deviation of the Gaussian policy.
+        per_agent_params: One set of weights per agent slot instead of shared weights.
+        max_agents: Number of agent slots when ``per_agent_params`` (ignored otherwise).
+        map: The map module.
+        comm: The communication module.
+    """
+
+    encoder: EncoderKind = "resnet18"
+    embed_dim: int = 1024
+    panorama_shape: tuple[int, int, int] = (3, 128, 512)
+    goal_shape: tuple[int, int, int] = (3, 128, 128)
+    weights_path: str | None = None
+    hidden_size: int = 512
+    critic_hidden_size: int = 512
+    critic_full_input: bool = False
+    log_std_init: float = -0.5
+    per_agent_params: bool = False
+    max_agents: int = 4
+    map: MapConfig = field(default_factory=MapConfig)
+    comm: CommConfig = field(default_factory=CommConfig)
+
+    @classmethod
+    def paper(cls, **overrides: object) -> ModelConfig:
+        """The paper's sizes (ResNet18, 3×128×512 panoramas, 384×384 map)."""
+        return cls(**overrides)  # type: ignore[arg-type]
+
+    @classmethod
+    def cpu(cls, **overrides: object) -> ModelConfig:
+        """Laptop-CPU sizes: small CNN, 3×32×128 panoramas, 96×96 map at 20 cm."""
+        base: dict[str, object] = dict(
+            encoder="small", embed_dim=256, panorama_shape=(3, 32, 128),
+            goal_shape=(3, 32, 32), hidden_size=256, critic_hidden_size=128,
+            map=MapConfig(size=96, resolution=0.2, local_size=32, feature_channels=32,
+                          feature_size=6, hidden=256, encoder_size=32, embed_dim=128),
+            comm=CommConfig(query_dim=64, key_dim=64, value_dim=256),
+        )
+        base.update(overrides)
+        return cls(**base)  # type: ignore[arg-type]

@@ -1,0 +1,96 @@
+"""``collavn scene info``: describe a scene and draw its map."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import tyro
+
+from collavn.scenes.loading import load_scene
+from collavn.scenes.scene import Scene
+
+
+def scene_summary(scene: Scene) -> dict[str, Any]:
+    """Facts about a scene as plain JSON-able values."""
+    nav = scene.nav
+    sizes = nav.component_sizes()
+    lo, hi = scene.bounds
+    return {
+        "name": scene.name,
+        "source": scene.source,
+        "triangles": scene.num_triangles,
+        "materials": int(len(scene.textures)),
+        "bounds_min": [round(float(v), 3) for v in lo],
+        "bounds_max": [round(float(v), 3) for v in hi],
+        "extent_m": [round(float(v), 2) for v in hi - lo],
+        "floor_z": round(scene.floor_z, 3),
+        "grid": {"resolution_m": nav.resolution, "rows": nav.shape[0], "cols": nav.shape[1]},
+        "navigable_area_m2": round(float(nav.navigable.sum() * nav.resolution**2), 2),
+        "components": int(len(sizes)),
+        "component_areas_m2": [round(float(a), 2) for a in sizes[:10]],
+        "largest_geodesic_m": round(largest_geodesic(scene), 2),
+        "content_hash": scene.content_hash,
+    }
+
+
+def largest_geodesic(scene: Scene) -> float:
+    """Longest geodesic distance in the largest component (two-sweep estimate).
+
+    Fast marching from any cell, then again from the farthest cell found; the
+    second sweep's maximum is the diameter for tree-like floor plans and a tight
+    lower bound otherwise.
+    """
+    nav = scene.nav
+    rows, cols = np.nonzero(nav.components == 1)
+    start = nav.cell_centers(rows[len(rows) // 2], cols[len(cols) // 2])
+    far = 0.0
+    for _ in range(2):
+        grid = scene.geodesic_field(start).grid
+        masked = np.where(np.isfinite(grid), grid, -1.0)
+        k = int(np.argmax(masked))
+        far = float(masked.flat[k])
+        start = nav.cell_centers(*np.unravel_index(k, grid.shape))
+    return far
+
+
+@dataclass
+class SceneInfo:
+    """Describe a scene: triangles, bounds, navigable area, components, geodesic span."""
+
+    scene: Annotated[str, tyro.conf.Positional]
+    """``procedural:SEED`` or a mesh file (.glb .gltf .obj .ply .dae)."""
+    json: bool = False
+    """Print JSON instead of a table."""
+    map: Path | None = None
+    """Also write a top-down map PNG (navigable area, obstacles, components, scale)."""
+    up_axis: str = "z"
+    """Up axis of a mesh file: ``z`` (Gibson, the shared scenes) or ``y`` (glTF/HM3D)."""
+    floor_height: float | None = None
+    """Multi-floor meshes: use the floor nearest this height (metres)."""
+
+    def run(self) -> int:
+        """Load, summarise, print; optionally draw."""
+        options: dict[str, Any] = {}
+        if not self.scene.startswith("procedural:"):
+            options = {"up_axis": self.up_axis, "floor_height": self.floor_height}
+        scene = load_scene(self.scene, **options)
+        info = scene_summary(scene)
+        if self.map is not None:
+            from collavn.viz.topdown import save_scene_map
+
+            info["map"] = str(save_scene_map(scene, self.map))
+        if self.json:
+            print(json.dumps(info, indent=2))
+        else:
+            from rich.console import Console
+            from rich.table import Table
+
+            table = Table(title=f"scene {info['name']}", show_header=False)
+            for key, value in info.items():
+                table.add_row(key, str(value))
+            Console().print(table)
+        return 0
