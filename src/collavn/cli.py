@@ -16,8 +16,20 @@ from collavn.errors import CollavnError
 
 #: command words → (module, class). Add a line here to add a command.
 COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
+    ("demo",): ("collavn.evaluation.demo", "Demo",
+                "Episodes on a procedural scene, oracle vs random, table and pictures."),
     ("scene", "info"): ("collavn.scenes.command", "SceneInfo",
                         "Describe a scene: size, navigable area, components; draw its map."),
+    ("dataset", "generate"): ("collavn.datasets.command", "DatasetGenerate",
+                              "Generate episode files of one task setting and split."),
+    ("dataset", "info"): ("collavn.datasets.command", "DatasetInfo",
+                          "Summarise an episode dataset: counts per difficulty, histograms."),
+    ("render",): ("collavn.rendering.command", "RenderCommand",
+                  "Render a panorama (or goal view) at a pose, with a depth picture."),
+    ("evaluate",): ("collavn.evaluation.command", "Evaluate",
+                    "Score random, oracle or a checkpoint on a dataset: records and tables."),
+    ("viz",): ("collavn.evaluation.command", "Viz",
+               "Trajectory maps and an episode GIF from an evaluation's output."),
 }
 
 

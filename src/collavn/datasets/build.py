@@ -16,6 +16,7 @@ from collavn.datasets.generator import (
     agents_for_split,
     episode_rng,
     generate_split,
+    Preset,
     get_preset,
 )
 from collavn.datasets.storage import (
@@ -30,7 +31,7 @@ from collavn.scenes.scene import Scene
 
 
 def generate_dataset(out: str | Path, scenes: Sequence[Scene], task: str, agents: int,
-                     split: str, preset: str = "small", seed: int = 0,
+                     split: str, preset: str | Preset = "small", seed: int = 0,
                      eval_agents: int | None = None,
                      config: SamplingConfig | None = None,
                      progress: bool = True) -> list[Path]:
@@ -47,7 +48,7 @@ def generate_dataset(out: str | Path, scenes: Sequence[Scene], task: str, agents
         task: ``commongoal``, ``specificgoal`` or ``adhocoop``.
         agents: ``N`` (Ad-hoCoop: the training ``N``).
         split: ``train``, ``val`` or ``test``.
-        preset: ``paper`` or ``small`` episode counts.
+        preset: ``paper`` or ``small`` episode counts, or a custom :class:`Preset`.
         seed: Master seed.
         eval_agents: Ad-hoCoop only: ``N'`` of val/test (default 2→3, 3→2).
         config: Sampling constraints and budgets (default :class:`SamplingConfig`).
@@ -60,7 +61,7 @@ def generate_dataset(out: str | Path, scenes: Sequence[Scene], task: str, agents
         DatasetError: for invalid arguments or a scene that cannot yield the
             requested episodes (nothing is written for that scene).
     """
-    counts = get_preset(preset)
+    counts = preset if isinstance(preset, Preset) else get_preset(preset)
     config = config or SamplingConfig()
     check_split(split)
     n = agents_for_split(task, agents, eval_agents, split)

@@ -114,18 +114,13 @@ def dataset_summary(dataset: Dataset) -> dict[str, Any]:
 
 
 def _default_specs(split: str) -> list[str]:
-    try:
-        from collavn.scenes.splits import scene_specs
-    except ImportError as e:
-        raise DatasetError("no default scenes: collavn.scenes.splits is not available; "
-                           "pass --scenes") from e
+    from collavn.scenes.splits import scene_specs
+
     return list(scene_specs(split))
 
 
 def _load_scene(spec: str) -> Scene:
-    """A saved ``.npz`` scene, else whatever ``collavn.scenes.load_scene`` accepts."""
-    if spec.endswith(".npz"):
-        return Scene.load(spec)
+    """Whatever :func:`collavn.scenes.load_scene` accepts (procedural, mesh, ``.npz``)."""
     from collavn.scenes import load_scene
 
     return load_scene(spec)

@@ -39,16 +39,21 @@ def check_split(split: str) -> str:
     return split
 
 
+def check_difficulty(difficulty: str) -> str:
+    """Return ``difficulty`` if it is ``easy``, ``medium`` or ``hard``, else raise."""
+    if difficulty not in DIFFICULTY_BINS:
+        raise DatasetError(f"unknown difficulty {difficulty!r}; expected one of "
+                           f"{', '.join(DIFFICULTY_BINS)}")
+    return difficulty
+
+
 def in_bin(distance: np.ndarray, difficulty: str) -> np.ndarray:
     """Whether each geodesic distance lies in the bin of ``difficulty``.
 
     Raises:
         DatasetError: if ``difficulty`` is not ``easy``, ``medium`` or ``hard``.
     """
-    if difficulty not in DIFFICULTY_BINS:
-        raise DatasetError(f"unknown difficulty {difficulty!r}; expected one of "
-                           f"{', '.join(DIFFICULTY_BINS)}")
-    lo, hi = DIFFICULTY_BINS[difficulty]
+    lo, hi = DIFFICULTY_BINS[check_difficulty(difficulty)]
     d = np.asarray(distance)
     upper = d <= hi if difficulty == "hard" else d < hi
     return (d >= lo) & upper

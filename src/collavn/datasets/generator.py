@@ -32,6 +32,7 @@ from collavn.datasets.episode import (
     DIFFICULTY_BINS,
     Episode,
     SceneRef,
+    check_difficulty,
     check_split,
     check_task,
     in_bin,
@@ -132,7 +133,7 @@ def sample_episodes(scene: Scene, task: str, num_agents: int, difficulty: str, c
             the try budget runs out (the message says how many were found).
     """
     check_task(task)
-    in_bin(np.zeros(0), difficulty)  # validates the name
+    check_difficulty(difficulty)
     if num_agents < 1:
         raise DatasetError(f"num_agents must be ≥ 1, got {num_agents}")
     nav = scene.nav

@@ -35,6 +35,9 @@ class EnvConfig:
         backend: Renderer backend: ``embree`` (CPU) or ``warp`` (CUDA or CPU).
         device: Renderer device for the ``warp`` backend (``cpu``, ``cuda:0``).
         render_threads: CPU threads for the ``embree`` backend.
+        privileged: Also return ``world_pose (E, N, 3)``, ``goal_position (E, N, 2)``
+            and ``scene_index (E,)`` — for experts (the oracle, imitation targets) and
+            tools, never for a learning agent's policy.
     """
 
     task: str = "commongoal"
@@ -52,6 +55,7 @@ class EnvConfig:
     backend: str = "embree"
     device: str = "cpu"
     render_threads: int = 2
+    privileged: bool = False
 
     def __post_init__(self) -> None:
         if self.num_agents < 1:

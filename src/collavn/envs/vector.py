@@ -14,7 +14,9 @@ Contract (Gymnasium vocabulary):
   ``AutoresetMode.SAME_STEP``** — the env is reset within the same ``step`` call:
   the observation returned for it is the first of the new episode, and
   ``info["episode_records"]`` carries the finished episode's per-agent records
-  (:class:`~collavn.metrics.AgentRecord`). ``info["episode_done"] (E,)`` marks those envs.
+  (:class:`~collavn.metrics.AgentRecord`). ``info["episode_done"] (E,)`` marks those envs
+  and ``info["final_poses"] (E, N, 3)`` holds every agent's world pose after the
+  action, before any reset.
   The finished episode's last observation is not returned; a learner that
   bootstraps truncated agents should use the value of the previous observation.
 """
@@ -110,9 +112,11 @@ class VectorEnv:
         reward, terminated = np.zeros((e, n), np.float32), np.zeros((e, n), bool)
         truncated, collided = np.zeros((e, n), bool), np.zeros((e, n), bool)
         done = np.zeros(e, dtype=bool)
+        final_poses = np.zeros((e, n, 3))
         records: list[AgentRecord] = []
         for envs, world, sensors, source in self.groups:
             out = world.step(actions[envs])
+            final_poses[envs] = world.poses()
             reward[envs], terminated[envs] = out.reward, out.terminated
             truncated[envs], collided[envs] = out.truncated, out.collided
             finished = np.flatnonzero(~world.running.any(axis=1) & out.any_finished)
@@ -121,8 +125,14 @@ class VectorEnv:
                 records += episode_records(world, finished)
                 if self.autoreset:
                     self._start(world, sensors, source, finished)
-        info = {"collided": collided, "episode_done": done, "episode_records": records}
+        info = {"collided": collided, "episode_done": done, "episode_records": records,
+                "final_poses": final_poses}
         return self._observe(), reward, terminated, truncated, info
+
+    @property
+    def scenes(self) -> list[Scene]:
+        """The scene of each group, indexed by ``obs["scene_index"]``."""
+        return [world.scene for _, world, _, _ in self.groups]
 
     def world_of(self, env: int) -> tuple[World, int]:
         """The world holding env ``env`` and its local index there."""
@@ -156,7 +166,11 @@ class VectorEnv:
             obs["depth"] = np.zeros((e, n, cfg.panorama_height, cfg.panorama_width), np.float32)
         if cfg.gt_map:
             obs["gt_map"] = np.zeros((e, n, 2, cfg.gt_map_size, cfg.gt_map_size), np.float32)
-        for envs, world, sensors, _ in self.groups:
+        if cfg.privileged:
+            obs["world_pose"] = np.zeros((e, n, 3), np.float64)
+            obs["goal_position"] = np.zeros((e, n, 2), np.float64)
+            obs["scene_index"] = np.zeros(e, np.int64)
+        for g, (envs, world, sensors, _) in enumerate(self.groups):
             poses = world.poses()
             views = sensors.panoramas(poses)
             obs["panorama"][envs] = views.rgb
@@ -171,6 +185,9 @@ class VectorEnv:
             obs["pose"][envs] = world.relative_to_start()
             obs["active"][envs] = world.running
             obs["step"][envs] = world.steps
+            if cfg.privileged:
+                obs["world_pose"][envs], obs["goal_position"][envs] = poses, world.goal
+                obs["scene_index"][envs] = g
             self._last_pose[envs] = poses
         return obs
 

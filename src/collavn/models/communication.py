@@ -137,7 +137,8 @@ def match_and_select(query_psi: Tensor, keys: Tensor, values: Tensor, entry_mask
     n_entries = valid.sum(dim=-1).clamp(min=1).to(z.dtype)  # (E, 1, M)
     agent_logit = torch.logsumexp(z, dim=-1) - torch.log(n_entries)
     agent_logit = agent_logit.masked_fill(~active.unsqueeze(1), _NEG)
-    scores = torch.softmax(agent_logit, dim=-1)  # (E, N, M)
+    pair_active = active.unsqueeze(2) & active.unsqueeze(1)
+    scores = torch.softmax(agent_logit, dim=-1) * pair_active  # (E, N, M)
     within = torch.softmax(z, dim=-1)  # (E, N, M, L)
     v_hat = torch.einsum("enml,emld->enmd", within, values)
 
@@ -150,8 +151,7 @@ def match_and_select(query_psi: Tensor, keys: Tensor, values: Tensor, entry_mask
     gate = scores * opened
     self_open = torch.diagonal(opened, dim1=1, dim2=2)  # o_n: the *when* decision
     eye = torch.eye(n_agents, dtype=torch.bool, device=keys.device)
-    pair_active = active.unsqueeze(2) & active.unsqueeze(1)
-    gate = gate * (self_open * active).unsqueeze(-1) * pair_active
+    gate = gate * self_open.unsqueeze(-1)
     omega = torch.einsum("enm,enmd->end", gate, v_hat)
 
     self_above = torch.diagonal(above, dim1=1, dim2=2)

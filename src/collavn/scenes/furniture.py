@@ -55,7 +55,8 @@ def furniture_materials(builder: SceneBuilder, rng: np.random.Generator) -> Mate
 
     def solid(name: str, rgb: tuple[float, float, float]) -> int:
         noise = tx.periodic_noise(rng, s, 1.0)
-        return builder.material(name, tx.to_uint8(np.asarray(rgb) * (0.94 + 0.08 * noise[..., None])))
+        shaded = np.asarray(rgb) * (0.94 + 0.08 * noise[..., None])
+        return builder.material(name, tx.to_uint8(shaded))
 
     return Materials(
         wood=mat("wood", tx.wood), wood_dark=mat("wood_dark", tx.wood),
@@ -104,8 +105,8 @@ class Frame:
     def quad(self, u0: float, u1: float, d: float, z0: float, z1: float, material: int) -> None:
         """A picture quad at depth ``d`` facing into the room (texture stretched once)."""
         (xa, ya), (xb, yb) = self.xy(u1, d), self.xy(u0, d)
-        self.builder.add_quad([[xa, ya, z0], [xb, yb, z0], [xb, yb, z1], [xa, ya, z1]],
-                              material)
+        corners = np.array([[xa, ya, z0], [xb, yb, z0], [xb, yb, z1], [xa, ya, z1]])
+        self.builder.add_quad(corners, material)
 
     def cylinder(self, u: float, d: float, radius: float, z0: float, z1: float,
                  material: int) -> None:
@@ -180,7 +181,8 @@ def _bed(f: Frame, m: Materials, rng: np.random.Generator) -> None:
     f.box(0.0, 0.0, 0.0, L, 0.06, 1.0, m.wood_dark)
     f.box(0.05, 0.06, 0.3, L - 0.05, D - 0.05, 0.5, m.white, faces=(1,))
     f.box(0.05, 0.65, 0.5, L - 0.05, D - 0.02, 0.54, m.bedding, tile=1.0)
-    for u0, u1 in ((0.12, L / 2 - 0.05), (L / 2 + 0.05, L - 0.12)) if L > 1.2 else ((0.12, L - 0.12),):
+    pillows = ((0.12, L / 2 - 0.05), (L / 2 + 0.05, L - 0.12)) if L > 1.2 else ((0.12, L - 0.12),)
+    for u0, u1 in pillows:
         f.box(u0, 0.12, 0.5, u1, 0.5, 0.62, m.white)
 
 
@@ -327,7 +329,8 @@ def furnish(builder: SceneBuilder, m: Materials, kind: str, interior: Rect,
         _rug(builder, m, interior, rng)
     placed: list[Placed] = []
     recipe = RECIPES.get(kind, ())
-    fillers = [(item, 0.8) for item in rng.choice(FILLERS, int(interior.area // 14))]
+    extra = rng.integers(len(FILLERS), size=int(interior.area // 14))
+    fillers = [(FILLERS[int(k)], 0.8) for k in extra]
     for item, prob in (*recipe, *fillers):
         if rng.random() >= prob:
             continue

@@ -23,7 +23,7 @@ def default_cache_dir() -> Path:
 
 
 def parse_scene_spec(spec: str) -> tuple[str, int | Path]:
-    """Split a spec into ``("procedural", seed)`` or ``("mesh", path)``."""
+    """Split a spec into ``("procedural", seed)``, ``("saved", path)`` or ``("mesh", path)``."""
     if spec.startswith("procedural:"):
         text = spec.split(":", 1)[1]
         try:
@@ -34,6 +34,8 @@ def parse_scene_spec(spec: str) -> tuple[str, int | Path]:
         if seed < 0:
             raise SceneError(f"bad scene spec {spec!r}: the seed must be ≥ 0")
         return "procedural", seed
+    if spec.endswith(".npz"):
+        return "saved", Path(spec)
     return "mesh", Path(spec)
 
 
@@ -42,7 +44,8 @@ def load_scene(spec: str, *, cache: bool = True, cache_dir: str | Path | None = 
     """Load a scene by spec, using the on-disk cache when possible.
 
     Args:
-        spec: ``procedural:SEED`` or a path to a ``.glb/.gltf/.obj/.ply/.dae`` file.
+        spec: ``procedural:SEED``, a path to a ``.glb/.gltf/.obj/.ply/.dae`` file, or
+            an ``.npz`` written by :meth:`Scene.save`.
         cache: Read and write the processed scene (geometry, textures, navigation
             grid) under ``cache_dir``; keyed by the file's content and all options.
         cache_dir: Defaults to :func:`default_cache_dir`.
@@ -51,6 +54,10 @@ def load_scene(spec: str, *, cache: bool = True, cache_dir: str | Path | None = 
             :func:`collavn.scenes.meshes.load_mesh_scene` (e.g. ``up_axis="y"``).
     """
     kind, value = parse_scene_spec(spec)
+    if kind == "saved":  # a scene written by Scene.save: nothing to process or cache
+        if not Path(value).is_file():
+            raise SceneError(f"saved scene not found: {value}")
+        return Scene.load(value)
     nav_config = nav_config or NavConfig()
     key = hashlib.sha256()
     key.update(repr((SCENE_FORMAT_VERSION, kind, sorted(options.items()),

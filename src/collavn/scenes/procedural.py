@@ -53,7 +53,8 @@ _WALLS: dict[str, tuple[tx.TextureFn, ...]] = {
     "hall": (tx.plaster, tx.dots, tx.stripes),
 }
 #: Metres covered by one repeat of each texture kind (default 1 m).
-_TILE = {tx.tiles: 0.8, tx.wood_floor: 1.4, tx.brick: 1.2, tx.carpet: 1.5, tx.marble: 1.2}
+_TILE: dict[tx.TextureFn, float] = {tx.tiles: 0.8, tx.wood_floor: 1.4, tx.brick: 1.2,
+                                    tx.carpet: 1.5, tx.marble: 1.2}
 
 
 def apartment_plan(seed: int, *, min_rooms: int = 4, max_rooms: int = 12) -> FloorPlan:
@@ -86,7 +87,7 @@ def generate_apartment(seed: int, *, texture_size: int = 64,
     paintings = _Paintings(builder, look_rng)
     builder.add_box((plan.footprint.x0, plan.footprint.y0, WALL_HEIGHT),
                     (plan.footprint.x1, plan.footprint.y1, WALL_HEIGHT + 0.1),
-                    builder.material("ceiling", tx.plaster(look_rng, texture_size)),
+                    builder.material("ceiling", _whiten(tx.plaster(look_rng, texture_size))),
                     faces=(0,))
     for index, room in enumerate(plan.rooms):
         _room(builder, plan, index, look_rng)
@@ -96,6 +97,11 @@ def generate_apartment(seed: int, *, texture_size: int = 64,
         _hang_pictures(builder, plan, index, placed, shared, paintings, furniture_rng)
     name = f"procedural:{seed}"
     return builder.build(name, floor_z=0.0, nav_config=nav_config, source=name)
+
+
+def _whiten(texture: np.ndarray) -> np.ndarray:
+    """Blend a ``(S, S, 3)`` uint8 texture 70 % towards white (ceilings)."""
+    return (0.3 * texture + 0.7 * 245.0).astype(np.uint8)
 
 
 def _streams(seed: int) -> list[np.random.Generator]:

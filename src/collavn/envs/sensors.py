@@ -1,0 +1,97 @@
+"""What the agents sense: panoramas, goal images, depth and ground-truth local maps.
+
+Wraps one scene's renderer for batches of ``E`` envs × ``N`` agents. Every agent sees
+the other agents of its own env (as robot bodies), never its own body, and never
+the agents of other envs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from collavn.envs.config import EnvConfig
+from collavn.rendering.cameras import CameraSpec
+from collavn.rendering.renderer import Renderer
+from collavn.scenes.scene import Scene
+
+
+@dataclass(frozen=True)
+class Views:
+    """Panorama renders: ``rgb (E, N, 3, H, W)`` uint8, ``depth (E, N, H, W)`` float32."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+
+
+class Sensors:
+    """Cameras of the agents in one scene."""
+
+    def __init__(self, scene: Scene, config: EnvConfig) -> None:
+        self.scene, self.config = scene, config
+        self.panorama = CameraSpec.panorama(config.panorama_width, config.panorama_height,
+                                            mount_height=config.camera_height)
+        self.goal = CameraSpec.pinhole(config.goal_size, config.goal_size,
+                                       mount_height=config.camera_height)
+        self.renderer = Renderer(scene, backend=config.backend, device=config.device,
+                                 panorama=self.panorama, goal=self.goal,
+                                 threads=config.render_threads)
+        self._directions = self.panorama.ray_directions().astype(np.float64)
+
+    def panoramas(self, poses: np.ndarray) -> Views:
+        """Render every agent's panorama; ``poses (E, N, 3)``.
+
+        Agent ``k``'s body is drawn (in agent ``k``'s colour) in the views of the
+        other agents of the same env.
+        """
+        e, n, _ = poses.shape
+        bodies = np.broadcast_to(poses[:, None, :, :2], (e, n, n, 2)).reshape(e * n, n, 2)
+        own = np.tile(np.arange(n), e)
+        out = self.renderer.render(poses.reshape(e * n, 3), "panorama", agents=bodies,
+                                   exclude=own)
+        h, w = self.panorama.height, self.panorama.width
+        return Views(out.rgb.reshape(e, n, 3, h, w), out.depth.reshape(e, n, h, w))
+
+    def goal_images(self, goal_poses: np.ndarray) -> np.ndarray:
+        """Front views at goal poses ``(E, N, 3)`` (no robots in them): ``(E, N, 3, G, G)``."""
+        e, n, _ = goal_poses.shape
+        out = self.renderer.render(goal_poses.reshape(e * n, 3), "goal")
+        g = self.goal.width
+        return out.rgb.reshape(e, n, 3, g, g)
+
+    def gt_maps(self, poses: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Egocentric ground-truth maps projected from the panorama depth.
+
+        Channel 0: obstacle (a surface point between ``step_height`` and
+        ``agent_height`` above the floor fell in the cell); channel 1: explored (any
+        surface point fell in it, or it lies under the robot). Agent at the centre,
+        heading up: row 0 is farthest ahead, column 0 farthest to the left; 10 cm cells.
+
+        Args:
+            poses: ``(E, N, 3)`` (only their count matters: maps are egocentric).
+            depth: ``(E, N, H, W)`` distances along each pixel's ray (0 = no hit).
+
+        Returns:
+            ``(E, N, 2, M, M)`` float32 with ``M = config.gt_map_size``.
+        """
+        e, n = poses.shape[:2]
+        m = self.config.gt_map_size
+        nav = self.scene.nav.config
+        res = nav.resolution
+        d = depth.reshape(e * n, -1).astype(np.float64)
+        valid = np.isfinite(d) & (d > 0)
+        pts = d[..., None] * self._directions[None]  # (B, P, 3) agent frame
+        height = pts[..., 2] + self.panorama.mount_height
+        row = np.floor(m / 2 - pts[..., 0] / res).astype(np.int64)
+        col = np.floor(m / 2 - pts[..., 1] / res).astype(np.int64)
+        valid &= (row >= 0) & (row < m) & (col >= 0) & (col < m)
+        obstacle = valid & (height >= nav.step_height) & (height <= nav.agent_height)
+        maps = np.zeros((e * n, 2, m, m), np.float32)
+        b = np.broadcast_to(np.arange(e * n)[:, None], d.shape)
+        maps[b[obstacle], 0, row[obstacle], col[obstacle]] = 1.0
+        maps[b[valid], 1, row[valid], col[valid]] = 1.0
+        body = int(np.ceil(nav.agent_radius / res))
+        maps[:, 1, m // 2 - body:m // 2 + body, m // 2 - body:m // 2 + body] = 1.0
+        return maps.reshape(e, n, 2, m, m)
+

@@ -1,0 +1,140 @@
+"""Run a policy over fixed episodes and collect per-agent records and trajectories."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from collavn.datasets.episode import Episode
+from collavn.envs.config import EnvConfig
+from collavn.envs.vector import VectorEnv
+from collavn.evaluation.policies import Policy
+from collavn.metrics import AgentRecord
+from collavn.scenes.scene import Scene
+
+
+@dataclass
+class Trajectory:
+    """Where the agents of one episode went (for pictures).
+
+    Attributes:
+        episode_id: The episode.
+        scene: ``Scene.source`` of its scene (``procedural:SEED`` or a mesh path).
+        poses: ``(T + 1, N, 3)`` world poses from the start to the end.
+        goals: ``(N, 2)`` goal position of each agent.
+        goal_yaws: ``(N,)`` goal view direction of each agent.
+        success: ``(N,)`` bool.
+    """
+
+    episode_id: str
+    scene: str
+    poses: np.ndarray
+    goals: np.ndarray
+    goal_yaws: np.ndarray
+    success: np.ndarray
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON object."""
+        return {"episode_id": self.episode_id, "scene": self.scene,
+                "poses": np.round(self.poses, 4).tolist(), "goals": self.goals.tolist(),
+                "goal_yaws": self.goal_yaws.tolist(), "success": self.success.tolist()}
+
+    @classmethod
+    def from_json(cls, obj: dict[str, Any]) -> Trajectory:
+        """Inverse of :meth:`to_json`."""
+        return cls(obj["episode_id"], obj["scene"], np.asarray(obj["poses"], float),
+                   np.asarray(obj["goals"], float), np.asarray(obj["goal_yaws"], float),
+                   np.asarray(obj["success"], bool))
+
+
+@dataclass
+class EvaluationResult:
+    """Records of every agent of every episode, and some trajectories."""
+
+    records: list[AgentRecord]
+    trajectories: list[Trajectory]
+
+
+def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: EnvConfig,
+             num_envs: int = 4, seed: int = 0, keep_trajectories: int = 0,
+             on_episode: Callable[[int], None] | None = None) -> EvaluationResult:
+    """Run ``policy`` on each episode of one scene exactly once.
+
+    Args:
+        policy: Acts for ``(E, N)`` agents (see :mod:`collavn.evaluation.policies`).
+        scene: The scene the episodes belong to.
+        episodes: Episodes with ``config.num_agents`` agents each.
+        config: Sensors and rules (``num_agents`` may differ from training: Ad-hoCoop).
+        num_envs: Envs stepped together.
+        seed: Seeds the env (odometry noise) — episodes themselves are fixed.
+        keep_trajectories: Keep the paths of the first this-many episodes.
+        on_episode: Called with 1 after each finished episode (progress bars).
+    """
+    episodes = list(episodes)
+    num_envs = max(1, min(num_envs, len(episodes)))
+    env = VectorEnv([scene], num_envs, config, episodes=[episodes], seed=seed)
+    obs, _ = env.reset(seed=seed)
+    state = policy.initial_state(num_envs, config.num_agents)
+    world = env.groups[0][1]
+    wanted = {ep.episode_id for ep in episodes[:keep_trajectories]}
+    paths: list[list[np.ndarray]] = [[world.poses()[e]] for e in range(num_envs)]
+    done: dict[str, list[AgentRecord]] = {}
+    trajectories: list[Trajectory] = []
+    while len(done) < len(episodes):
+        before = [world.episodes[e] for e in range(num_envs)]
+        actions, state = policy.act(obs, state)
+        obs, _, _, _, info = env.step(actions)
+        ended = info["episode_done"]
+        for e in range(num_envs):
+            ep = before[e]
+            assert ep is not None
+            paths[e].append(info["final_poses"][e])
+        for rec in info["episode_records"]:
+            done.setdefault(rec.episode_id, []).append(rec)
+        for e in np.flatnonzero(ended):
+            ep = before[e]
+            assert ep is not None
+            if ep.episode_id in wanted and all(t.episode_id != ep.episode_id
+                                               for t in trajectories):
+                success = np.array([r.success for r in sorted(done[ep.episode_id],
+                                                              key=lambda r: r.agent)])
+                trajectories.append(Trajectory(ep.episode_id, scene.source,
+                                               np.stack(paths[e]), ep.agent_goals,
+                                               ep.agent_goal_yaws, success))
+            paths[e] = [world.poses()[e]]
+            if on_episode is not None:
+                on_episode(1)
+    records = [r for ep in episodes for r in sorted(done[ep.episode_id], key=lambda r: r.agent)]
+    return EvaluationResult(records, trajectories)
+
+
+def write_records(path: str | Path, records: Sequence[AgentRecord]) -> Path:
+    """One JSON object per agent record, one per line."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(json.dumps(asdict(r), sort_keys=True) + "\n" for r in records))
+    return path
+
+
+def read_records(path: str | Path) -> list[AgentRecord]:
+    """Inverse of :func:`write_records`."""
+    lines = Path(path).read_text().splitlines()
+    return [AgentRecord(**json.loads(line)) for line in lines if line.strip()]
+
+
+def write_trajectories(path: str | Path, trajectories: Sequence[Trajectory]) -> Path:
+    """One trajectory per line (JSON Lines)."""
+    path = Path(path)
+    path.write_text("".join(json.dumps(t.to_json()) + "\n" for t in trajectories))
+    return path
+
+
+def read_trajectories(path: str | Path) -> list[Trajectory]:
+    """Inverse of :func:`write_trajectories`."""
+    lines = Path(path).read_text().splitlines()
+    return [Trajectory.from_json(json.loads(line)) for line in lines if line.strip()]

@@ -1,0 +1,239 @@
+"""View-independent shading tables and the CPU per-pixel kernels (Numba).
+
+Shading model (both backends compute exactly this, in float32):
+
+* **texture**: the hit's barycentric ``(u, v)`` (weights of corners 1 and 2)
+  interpolate the face's corner UVs; coordinates wrap modulo 1 and pick the nearest
+  texel ``textures[m, S − 1 − ⌊frac(v)·S⌋, ⌊frac(u)·S⌋]`` (the scene's convention);
+* **tint and light**: times ``face_tint / 255`` times the Lambertian factor
+  ``ambient + diffuse · |n · L|`` (two-sided, so back faces are lit like front
+  faces); both are per face and precomputed once per scene in ``face_color``;
+* **agent bodies**: vertical cylinders in a colour per agent index
+  (:data:`BODY_PALETTE`), lit with the same Lambertian term and the hit normal;
+* the result is rounded to the nearest integer: ``uint8(min(c + 0.5, 255))``.
+
+Pixels whose ray hits nothing are black, depth 0, id −1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from collavn.scenes.scene import Scene
+
+#: Colours of agent bodies, agent ``k`` uses ``BODY_PALETTE[k % len(BODY_PALETTE)]``.
+BODY_PALETTE = np.array([
+    (230, 25, 75), (0, 130, 200), (60, 180, 75), (245, 130, 48),
+    (145, 30, 180), (70, 240, 240), (255, 225, 25), (240, 50, 230),
+], dtype=np.uint8)
+
+F32 = np.float32
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """A directional light plus ambient light; no shadows.
+
+    Attributes:
+        ambient: Brightness of surfaces facing away from (or edge-on to) the light.
+        diffuse: Extra brightness of surfaces facing the light head-on.
+        direction: Direction towards the light (normalised internally). Its x and y
+            parts differ so that walls along x and along y get different shades.
+    """
+
+    ambient: float = 0.45
+    diffuse: float = 0.55
+    direction: tuple[float, float, float] = (0.45, 0.25, 0.86)
+
+    def as_array(self) -> np.ndarray:
+        """``(5,)`` float32: ambient, diffuse, Lx, Ly, Lz (unit vector)."""
+        d = np.asarray(self.direction, dtype=np.float64)
+        d = d / max(float(np.linalg.norm(d)), 1e-12)
+        return np.array([self.ambient, self.diffuse, *d], dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class BodySpec:
+    """Shape of the agents' bodies as other agents see them.
+
+    Attributes:
+        radius: Cylinder radius in metres (LoCoBot: 0.18).
+        height: Cylinder height above the floor in metres.
+    """
+
+    radius: float = 0.18
+    height: float = 0.6
+
+
+@dataclass(frozen=True, eq=False)
+class ShadingTables:
+    """Per-scene arrays the kernels read; built once by :meth:`from_scene`.
+
+    Attributes:
+        face_uv: ``(F, 6)`` float32 ``uv0, uv1 − uv0, uv2 − uv0`` per face.
+        face_color: ``(F, 3)`` float32 ``tint / 255 · lambert`` per face.
+        face_material: ``(F,)`` int32 texture index per face.
+        textures: ``(M, S, S, 3)`` uint8 textures.
+        light: ``(5,)`` float32 from :meth:`Lighting.as_array`.
+        palette: ``(K, 3)`` float32 body colours (0–255).
+    """
+
+    face_uv: np.ndarray
+    face_color: np.ndarray
+    face_material: np.ndarray
+    textures: np.ndarray
+    light: np.ndarray
+    palette: np.ndarray
+
+    @classmethod
+    def from_scene(cls, scene: Scene, lighting: Lighting) -> ShadingTables:
+        """Precompute everything view-independent about the scene's appearance."""
+        light = lighting.as_array()
+        uv = scene.face_uvs.astype(np.float32)
+        face_uv = np.concatenate([uv[:, 0], uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=1)
+        lam = light[0] + light[1] * np.abs(scene.face_normals @ light[2:])
+        color = scene.face_tint.astype(np.float32) / F32(255.0) * lam[:, None].astype(F32)
+        return cls(
+            face_uv=np.ascontiguousarray(face_uv, dtype=F32),
+            face_color=np.ascontiguousarray(color, dtype=F32),
+            face_material=np.ascontiguousarray(scene.face_material, dtype=np.int32),
+            textures=np.ascontiguousarray(scene.textures, dtype=np.uint8),
+            light=light,
+            palette=BODY_PALETTE.astype(F32),
+        )
+
+
+@numba.njit(cache=True, nogil=True)
+def fill_rays(cam_dirs: np.ndarray, p0: int, view: np.ndarray, origins: np.ndarray,
+              dirs: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Rotate camera rays ``p0 : p0 + n`` by a view's yaw and place them at its origin.
+
+    Args:
+        cam_dirs: ``(N, 3)`` float32 directions in the agent frame.
+        p0: First pixel of the chunk.
+        view: ``(5,)`` float32 ``x, y, z, cos(yaw), sin(yaw)`` of the camera.
+        origins: ``(n, 3)`` float32 output.
+        dirs: ``(n, 3)`` float32 output.
+    """
+    c, s = view[3], view[4]
+    for k in range(dirs.shape[0]):
+        dx, dy = cam_dirs[p0 + k, 0], cam_dirs[p0 + k, 1]
+        dirs[k, 0] = c * dx - s * dy
+        dirs[k, 1] = s * dx + c * dy
+        dirs[k, 2] = cam_dirs[p0 + k, 2]
+        origins[k, 0] = view[0]
+        origins[k, 1] = view[1]
+        origins[k, 2] = view[2]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def hit_body(ox, oy, oz, dx, dy, dz, cx, cy, body):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Entry distance of a ray into a closed vertical cylinder, and the normal there.
+
+    ``body`` is ``(radius, z_bottom, z_top)`` float32. Returns ``(t, nx, ny, nz)``
+    with ``t = inf`` on a miss (also when the ray starts inside the cylinder).
+    """
+    r, z0, z1 = body[0], body[1], body[2]
+    px, py = ox - cx, oy - cy
+    c = px * px + py * py - r * r
+    best, nx, ny, nz = F32(np.inf), F32(0.0), F32(0.0), F32(0.0)
+    if c <= F32(0.0) and z0 <= oz <= z1:
+        return best, nx, ny, nz
+    a = dx * dx + dy * dy
+    b = px * dx + py * dy
+    disc = b * b - a * c
+    if a > F32(1e-12) and disc >= F32(0.0) and c > F32(0.0):
+        t = (-b - np.sqrt(disc)) / a
+        z = oz + t * dz
+        if t > F32(0.0) and z0 <= z <= z1:
+            best, nx, ny = t, (px + t * dx) / r, (py + t * dy) / r
+    if dz != F32(0.0):
+        zc = z1 if oz > z1 else z0
+        t = (zc - oz) / dz
+        qx, qy = px + t * dx, py + t * dy
+        if F32(0.0) < t < best and qx * qx + qy * qy <= r * r and (oz > z1 or oz < z0):
+            best, nx, ny, nz = t, F32(0.0), F32(0.0), F32(1.0)
+    return best, nx, ny, nz
+
+
+@numba.njit(cache=True, nogil=True)
+def shade_chunk(prim, bu, bv, tfar, dirs, view, bodies, skip, body,  # type: ignore[no-untyped-def]
+                face_uv, face_color, face_material, textures, light, palette,
+                rgb, depth, ids, b, p0, write_ids):  # pragma: no cover - compiled
+    """Shade ``n`` cast rays of view ``b`` into pixels ``p0 : p0 + n`` of the outputs.
+
+    Args:
+        prim, bu, bv, tfar: ``(n,)`` Embree results: triangle (−1 = miss), barycentric
+            weights of corners 1 and 2, hit distance.
+        dirs: ``(n, 3)`` float32 world ray directions; ``view`` as in :func:`fill_rays`.
+        bodies: ``(A, 2)`` float32 body centres; ``skip``: body not drawn (−1: none);
+            ``body``: ``(3,)`` float32 radius, bottom z, top z.
+        face_uv, face_color, face_material, textures, light, palette: see
+            :class:`ShadingTables`.
+        rgb: ``(B, 3, N)`` uint8, ``depth``: ``(B, N)`` float32, ``ids``: ``(B, N)``
+            int32 outputs (written only if ``write_ids``).
+        b, p0: View index and first pixel.
+        write_ids: Whether to fill ``ids``.
+    """
+    size = textures.shape[1]
+    for k in range(prim.shape[0]):
+        f = prim[k]
+        t = tfar[k] if f >= 0 else F32(np.inf)
+        hit = -1
+        nx = ny = nz = F32(0.0)
+        for a in range(bodies.shape[0]):
+            if a != skip:
+                ta, ax, ay, az = hit_body(view[0], view[1], view[2], dirs[k, 0], dirs[k, 1],
+                                          dirs[k, 2], bodies[a, 0], bodies[a, 1], body)
+                if ta < t:
+                    t, hit, nx, ny, nz = ta, a, ax, ay, az
+        p = p0 + k
+        if hit >= 0:
+            lam = light[0] + light[1] * abs(nx * light[2] + ny * light[3] + nz * light[4])
+            j = hit % palette.shape[0]
+            for ch in range(3):
+                rgb[b, ch, p] = np.uint8(min(palette[j, ch] * lam + F32(0.5), F32(255.0)))
+            depth[b, p] = t
+            if write_ids:
+                ids[b, p] = -2 - hit
+        elif f >= 0:
+            w1, w2 = bu[k], bv[k]
+            u = face_uv[f, 0] + w1 * face_uv[f, 2] + w2 * face_uv[f, 4]
+            v = face_uv[f, 1] + w1 * face_uv[f, 3] + w2 * face_uv[f, 5]
+            col = min(int((u - np.floor(u)) * size), size - 1)
+            row = size - 1 - min(int((v - np.floor(v)) * size), size - 1)
+            m = face_material[f]
+            for ch in range(3):
+                c = F32(textures[m, row, col, ch]) * face_color[f, ch] + F32(0.5)
+                rgb[b, ch, p] = np.uint8(min(c, F32(255.0)))
+            depth[b, p] = t
+            if write_ids:
+                ids[b, p] = f
+        else:
+            for ch in range(3):
+                rgb[b, ch, p] = 0
+            depth[b, p] = 0.0
+            if write_ids:
+                ids[b, p] = -1
+
+
+def warm_up() -> None:
+    """Compile (or load from Numba's cache) the kernels with the renderer's types."""
+    n = 2
+    cam = np.zeros((n, 3), F32)
+    cam[:, 0] = 1.0
+    view = np.array([0, 0, 0.5, 1, 0], F32)
+    origins, dirs = np.zeros((n, 3), F32), np.zeros((n, 3), F32)
+    fill_rays(cam, 0, view, origins, dirs)
+    tables = ShadingTables(np.zeros((1, 6), F32), np.ones((1, 3), F32), np.zeros(1, np.int32),
+                           np.zeros((1, 2, 2, 3), np.uint8), Lighting().as_array(),
+                           BODY_PALETTE.astype(F32))
+    shade_chunk(np.zeros(n, np.int32), np.zeros(n, F32), np.zeros(n, F32), np.ones(n, F32),
+                dirs, view, np.array([[2.0, 0.0]], F32), -1, np.array([0.2, 0, 1], F32),
+                tables.face_uv, tables.face_color, tables.face_material, tables.textures,
+                tables.light, tables.palette, np.zeros((1, 3, n), np.uint8),
+                np.zeros((1, n), F32), np.zeros((1, n), np.int32), 0, 0, True)
+

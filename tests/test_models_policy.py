@@ -1,0 +1,163 @@
+import pytest
+import torch
+
+from collavn.models import ActorCritic, AgentState, CommConfig, MapConfig, ModelConfig, map_loss
+
+torch.set_num_threads(1)
+
+
+def tiny(variant: str = "memory", **overrides) -> ModelConfig:
+    return ModelConfig.cpu(
+        panorama_shape=(3, 16, 64), goal_shape=(3, 16, 16), embed_dim=32, hidden_size=32,
+        critic_hidden_size=16,
+        map=MapConfig(size=32, resolution=0.2, local_size=16, feature_channels=4,
+                      feature_size=4, hidden=32, encoder_size=16, embed_dim=16),
+        comm=CommConfig(variant=variant, query_dim=16, key_dim=16, value_dim=24), **overrides)
+
+
+def observations(e: int, n: int, seed: int, shape=(16, 64), goal=(16, 16)):
+    g = torch.Generator().manual_seed(seed)
+    return dict(
+        panorama=torch.randint(0, 256, (e, n, 3, *shape), generator=g, dtype=torch.uint8),
+        goal=torch.randint(0, 256, (e, n, 3, *goal), generator=g, dtype=torch.uint8),
+        pose_delta=torch.randn(e, n, 3, generator=g) * 0.3,
+        active=torch.ones(e, n, dtype=torch.bool))
+
+
+@pytest.mark.parametrize("variant", ["none", "handshake", "memory"])
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_shapes_for_any_number_of_agents(variant, n):
+    torch.manual_seed(0)
+    cfg = tiny(variant)
+    model = ActorCritic(cfg)
+    e = 2
+    state = model.initial_state(e, n)
+    out = model.act(observations(e, n, 0), state, torch.ones(e, n, dtype=torch.bool))
+    assert out.action.shape == (e, n, 2) and out.raw_action.shape == (e, n, 2)
+    assert out.action.abs().max() <= 1.0
+    assert out.log_prob.shape == (e, n) and out.value.shape == (e, n)
+    assert out.bytes_sent.shape == (e, n) and out.message.scores.shape == (e, n, n)
+    omega_dim = 0 if variant == "none" else cfg.comm.value_dim
+    assert out.message.omega.shape == (e, n, omega_dim)
+    s = out.state
+    assert s.grid.shape == (e, n, 4, 32, 32) and s.features.shape == (e, n, 4, 4, 4)
+    assert s.actor_h.shape == (e, n, 32) and s.critic_h.shape == (e, n, 16)
+    slots = 80 if variant == "memory" else 0
+    assert s.mem_keys.shape == (e, n, slots, 16) and s.mem_values.shape == (e, n, slots, 24)
+
+
+def test_finished_agents_keep_their_state_and_are_not_matched():
+    torch.manual_seed(0)
+    model = ActorCritic(tiny()).eval()
+    n = 3
+    state = model.initial_state(1, n)
+    start = torch.ones(1, n, dtype=torch.bool)
+    state = model(observations(1, n, 0), state, start).state
+    obs = observations(1, n, 1)
+    obs["active"] = torch.tensor([[True, False, True]])
+    out = model(obs, state, torch.zeros(1, n, dtype=torch.bool))
+    for name in ("actor_h", "critic_h", "grid", "pose", "mem_keys", "mem_count", "steps"):
+        assert torch.equal(getattr(out.state, name)[0, 1], getattr(state, name)[0, 1]), name
+    assert out.state.mem_count.tolist() == [[2, 1, 2]]
+    assert (out.message.scores[0, :, 1] == 0).all() and out.message.bytes_sent[0, 1] == 0
+    assert torch.equal(out.message.omega[0, 1], torch.zeros(24))
+
+
+def test_ad_hoc_team_size_same_weights():
+    torch.manual_seed(0)
+    model = ActorCritic(tiny()).eval()
+    for n in (2, 3):
+        out = model.act(observations(1, n, 0), model.initial_state(1, n),
+                        torch.ones(1, n, dtype=torch.bool), deterministic=True)
+        assert out.action.shape == (1, n, 2)
+
+
+def test_per_agent_parameters():
+    torch.manual_seed(0)
+    shared = ActorCritic(tiny())
+    per_agent = ActorCritic(tiny(per_agent_params=True, max_agents=3))
+    count = sum(p.numel() for p in per_agent.parameters())
+    assert count == 3 * sum(p.numel() for p in shared.parameters())
+    out = per_agent(observations(2, 3, 0), per_agent.initial_state(2, 3),
+                    torch.ones(2, 3, dtype=torch.bool))
+    assert out.value.shape == (2, 3)
+    with pytest.raises(ValueError, match="max_agents"):
+        per_agent(observations(1, 4, 0), per_agent.initial_state(1, 4),
+                  torch.ones(1, 4, dtype=torch.bool))
+
+
+def test_deterministic_action_is_clipped_mean():
+    torch.manual_seed(0)
+    model = ActorCritic(tiny(log_std_init=0.0))
+    with torch.no_grad():
+        model.towers[0].actor_mean.bias.fill_(3.0)
+    out = model.act(observations(1, 2, 0), model.initial_state(1, 2),
+                    torch.ones(1, 2, dtype=torch.bool), deterministic=True)
+    assert torch.allclose(out.action, torch.ones(1, 2, 2))
+    assert (out.raw_action > 2.9).all()
+
+
+def test_evaluate_actions_reproduces_rollout_log_probs():
+    torch.manual_seed(0)
+    model = ActorCritic(tiny()).eval()
+    e, n, steps = 2, 3, 4
+    state0 = model.initial_state(e, n)
+    state = state0
+    starts = torch.zeros(steps, e, n, dtype=torch.bool)
+    starts[0] = True
+    starts[2, 1] = True  # env 1 starts a new episode mid-sequence
+    seq, acts, logps, values = [], [], [], []
+    for t in range(steps):
+        obs = observations(e, n, t)
+        out = model.act(obs, state, starts[t])
+        seq.append(obs)
+        acts.append(out.raw_action)
+        logps.append(out.log_prob)
+        values.append(out.value)
+        state = out.state
+    stacked = {k: torch.stack([o[k] for o in seq]) for k in seq[0]}
+    ev = model.evaluate_actions(stacked, state0, starts, torch.stack(acts))
+    assert torch.allclose(ev.log_prob, torch.stack(logps), atol=1e-5)
+    assert torch.allclose(ev.value, torch.stack(values), atol=1e-5)
+    assert ev.entropy.shape == (steps, e, n)
+    loss = -ev.log_prob.mean() + ev.value.pow(2).mean()
+    loss.backward()
+    grads = [p.grad for p in model.parameters() if p.grad is not None]
+    assert grads and any(g.abs().sum() > 0 for g in grads)
+
+
+def test_map_logits_train_with_map_loss():
+    torch.manual_seed(0)
+    model = ActorCritic(tiny("none"))
+    out = model(observations(1, 2, 0), model.initial_state(1, 2),
+                torch.ones(1, 2, dtype=torch.bool))
+    gt = torch.rand(1, 2, 2, 32, 32)  # 10 cm gt over the same 3.2 m as the 20 cm patch
+    loss = map_loss(out.map_logits, gt)
+    loss.backward()
+    predictor = model.towers[0].map_builder.predictor
+    assert predictor.decoder[-1].weight.grad.abs().sum() > 0
+
+
+def test_state_reset_and_device():
+    torch.manual_seed(0)
+    model = ActorCritic(tiny(), device="cpu")
+    state = model.initial_state(2, 2)
+    assert state.grid.device == model.device
+    out = model(observations(2, 2, 0), state, torch.ones(2, 2, dtype=torch.bool))
+    reset = out.state.reset(torch.tensor([[True, False], [False, False]]))
+    assert reset.grid[0, 0].abs().sum() == 0 and reset.grid[0, 1].abs().sum() > 0
+    assert isinstance(reset.detach(), AgentState)
+    assert reset.select_envs(slice(0, 1)).num_envs == 1
+
+
+def test_paper_size_shapes():
+    torch.manual_seed(0)
+    cfg = ModelConfig.paper()
+    model = ActorCritic(cfg).eval()
+    with torch.no_grad():
+        out = model(observations(1, 2, 0, shape=(128, 512), goal=(128, 128)),
+                    model.initial_state(1, 2), torch.ones(1, 2, dtype=torch.bool))
+    assert out.state.grid.shape == (1, 2, 4, 384, 384)
+    assert out.state.features.shape == (1, 2, 256, 13, 13)
+    assert out.map_logits.shape == (1, 2, 2, 64, 64)
+    assert out.message.omega.shape == (1, 2, 2048) and out.value.shape == (1, 2)
