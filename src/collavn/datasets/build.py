@@ -12,11 +12,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 import collavn
 from collavn.datasets.episode import SceneRef, check_split
 from collavn.datasets.generator import (
+    Preset,
     SamplingConfig,
     agents_for_split,
     episode_rng,
     generate_split,
-    Preset,
     get_preset,
 )
 from collavn.datasets.storage import (

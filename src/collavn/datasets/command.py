@@ -15,7 +15,6 @@ from rich.table import Table
 from collavn.datasets.build import generate_dataset
 from collavn.datasets.episode import DIFFICULTY_BINS
 from collavn.datasets.storage import Dataset
-from collavn.errors import DatasetError
 from collavn.scenes.scene import Scene
 
 #: Histogram bin edges of geodesic start-to-goal distances, metres.

@@ -1,7 +1,8 @@
 """CPU backend: Embree ray casts (``embreex``) plus Numba shading, on a few threads.
 
-Work is cut into chunks of ``chunk_rays`` consecutive pixels of one view; each thread
-owns its ray buffers and takes every ``threads``-th chunk. Per chunk the thread
+The batch's rays are numbered ``g = b · N + p`` (view, pixel) and cut into chunks of
+``chunk_rays`` consecutive rays (a chunk may span views: small images batch well);
+each thread owns its ray buffers and takes every ``threads``-th chunk. Per chunk the thread
 rotates the precomputed camera rays (:func:`fill_rays`), casts them with Embree
 (which releases the GIL) and shades them straight into the output arrays
 (:func:`shade_chunk`, also GIL-free), so both cores stay busy end to end.
@@ -24,7 +25,7 @@ class EmbreeBackend:
     """Casts with Embree and shades with Numba; see the module docstring."""
 
     def __init__(self, scene: Scene, tables: ShadingTables, threads: int = 2,
-                 chunk_rays: int = 8192) -> None:
+                 chunk_rays: int = 16384) -> None:
         """Build the Embree BVH of ``scene``.
 
         Args:
@@ -64,9 +65,9 @@ class EmbreeBackend:
             depth: ``(B, N)`` float32 output.
             ids: ``(B, N)`` int32 output, or None to skip ids.
         """
-        n = cam_dirs.shape[0]
-        jobs = [(b, p0, min(p0 + self.chunk_rays, n))
-                for b in range(views.shape[0]) for p0 in range(0, n, self.chunk_rays)]
+        total = cam_dirs.shape[0] * views.shape[0]
+        jobs = [(g0, min(g0 + self.chunk_rays, total))
+                for g0 in range(0, total, self.chunk_rays)]
         args = (cam_dirs, views, bodies, skip, body, rgb, depth, ids)
         if self._pool is None or len(jobs) == 1:
             self._work(jobs, *args)
@@ -76,23 +77,18 @@ class EmbreeBackend:
         for future in futures:
             future.result()
 
-    def _work(self, jobs: list[tuple[int, int, int]], cam_dirs: np.ndarray,
+    def _work(self, jobs: list[tuple[int, int]], cam_dirs: np.ndarray,
               views: np.ndarray, bodies: np.ndarray, skip: np.ndarray, body: np.ndarray,
               rgb: np.ndarray, depth: np.ndarray, ids: np.ndarray | None) -> None:
         """One thread's share: rotate, cast and shade each chunk."""
         t = self.tables
-        size = max(p1 - p0 for _, p0, p1 in jobs)
+        size = max(g1 - g0 for g0, g1 in jobs)
         origins, dirs = np.empty((size, 3), F32), np.empty((size, 3), F32)
         id_out = ids if ids is not None else np.empty((1, 1), np.int32)
-        for b, p0, p1 in jobs:
-            o, d = origins[: p1 - p0], dirs[: p1 - p0]
-            fill_rays(cam_dirs, p0, views[b], o, d)
+        for g0, g1 in jobs:
+            o, d = origins[: g1 - g0], dirs[: g1 - g0]
+            fill_rays(cam_dirs, views, g0, o, d)
             hit = self._embree.run(o, d, output=1)
-            shade_chunk(hit["primID"], hit["u"], hit["v"], hit["tfar"], d, views[b], bodies[b],
-                        int(skip[b]), body, t.face_uv, t.face_color, t.face_material,
-                        t.textures, t.light, t.palette, rgb, depth, id_out, b, p0,
-                        ids is not None)
-
-    def cast(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-        """Raw Embree cast of ``(R, 3)`` float32 rays; returns ``(R,)`` int32 triangle ids."""
-        return np.asarray(self._embree.run(origins, dirs), dtype=np.int32)
+            shade_chunk(hit["primID"], hit["u"], hit["v"], hit["tfar"], d, g0, views, bodies,
+                        skip, body, t.face_uv, t.face_color, t.face_material, t.textures,
+                        t.light, t.palette, rgb, depth, id_out, ids is not None)

@@ -58,7 +58,7 @@ class Renderer:
     def __init__(self, scene: Scene, *, backend: BackendName = "embree", device: str = "cpu",
                  panorama: CameraSpec | None = None, goal: CameraSpec | None = None,
                  body: BodySpec | None = None, lighting: Lighting | None = None,
-                 threads: int = 2, chunk_rays: int = 8192) -> None:
+                 threads: int = 2, chunk_rays: int = 16384) -> None:
         """Prepare the scene for fast casting (BVH, shading tables, ray directions).
 
         Args:

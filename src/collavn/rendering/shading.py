@@ -107,26 +107,28 @@ class ShadingTables:
 
 
 @numba.njit(cache=True, nogil=True)
-def fill_rays(cam_dirs: np.ndarray, p0: int, view: np.ndarray, origins: np.ndarray,
+def fill_rays(cam_dirs: np.ndarray, views: np.ndarray, g0: int, origins: np.ndarray,
               dirs: np.ndarray) -> None:  # pragma: no cover - compiled
-    """Rotate camera rays ``p0 : p0 + n`` by a view's yaw and place them at its origin.
+    """World rays ``g0 : g0 + n`` of a batch, numbered ``g = b · N + p`` (view, pixel).
 
     Args:
         cam_dirs: ``(N, 3)`` float32 directions in the agent frame.
-        p0: First pixel of the chunk.
-        view: ``(5,)`` float32 ``x, y, z, cos(yaw), sin(yaw)`` of the camera.
+        views: ``(B, 5)`` float32 ``x, y, z, cos(yaw), sin(yaw)`` per camera.
+        g0: First ray of the chunk.
         origins: ``(n, 3)`` float32 output.
-        dirs: ``(n, 3)`` float32 output.
+        dirs: ``(n, 3)`` float32 output: ``cam_dirs`` rotated by the view's yaw.
     """
-    c, s = view[3], view[4]
+    n_pix = cam_dirs.shape[0]
     for k in range(dirs.shape[0]):
-        dx, dy = cam_dirs[p0 + k, 0], cam_dirs[p0 + k, 1]
+        b, p = divmod(g0 + k, n_pix)
+        c, s = views[b, 3], views[b, 4]
+        dx, dy = cam_dirs[p, 0], cam_dirs[p, 1]
         dirs[k, 0] = c * dx - s * dy
         dirs[k, 1] = s * dx + c * dy
-        dirs[k, 2] = cam_dirs[p0 + k, 2]
-        origins[k, 0] = view[0]
-        origins[k, 1] = view[1]
-        origins[k, 2] = view[2]
+        dirs[k, 2] = cam_dirs[p, 2]
+        origins[k, 0] = views[b, 0]
+        origins[k, 1] = views[b, 1]
+        origins[k, 2] = views[b, 2]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -160,37 +162,39 @@ def hit_body(ox, oy, oz, dx, dy, dz, cx, cy, body):  # type: ignore[no-untyped-d
 
 
 @numba.njit(cache=True, nogil=True)
-def shade_chunk(prim, bu, bv, tfar, dirs, view, bodies, skip, body,  # type: ignore[no-untyped-def]
+def shade_chunk(prim, bu, bv, tfar, dirs, g0, views, bodies, skip, body,  # type: ignore[no-untyped-def]
                 face_uv, face_color, face_material, textures, light, palette,
-                rgb, depth, ids, b, p0, write_ids):  # pragma: no cover - compiled
-    """Shade ``n`` cast rays of view ``b`` into pixels ``p0 : p0 + n`` of the outputs.
+                rgb, depth, ids, write_ids):  # pragma: no cover - compiled
+    """Shade the cast rays ``g0 : g0 + n`` (numbered as in :func:`fill_rays`).
 
     Args:
         prim, bu, bv, tfar: ``(n,)`` Embree results: triangle (−1 = miss), barycentric
             weights of corners 1 and 2, hit distance.
-        dirs: ``(n, 3)`` float32 world ray directions; ``view`` as in :func:`fill_rays`.
-        bodies: ``(A, 2)`` float32 body centres; ``skip``: body not drawn (−1: none);
-            ``body``: ``(3,)`` float32 radius, bottom z, top z.
+        dirs: ``(n, 3)`` float32 world ray directions; ``g0`` the first ray's number.
+        views: ``(B, 5)`` float32 cameras as in :func:`fill_rays`.
+        bodies: ``(B, A, 2)`` float32 body centres per view; ``skip``: ``(B,)`` int64
+            body not drawn in each view (−1: none); ``body``: ``(3,)`` float32
+            radius, bottom z, top z.
         face_uv, face_color, face_material, textures, light, palette: see
             :class:`ShadingTables`.
         rgb: ``(B, 3, N)`` uint8, ``depth``: ``(B, N)`` float32, ``ids``: ``(B, N)``
             int32 outputs (written only if ``write_ids``).
-        b, p0: View index and first pixel.
         write_ids: Whether to fill ``ids``.
     """
-    size = textures.shape[1]
+    size, n_pix = textures.shape[1], rgb.shape[2]
     for k in range(prim.shape[0]):
+        b, p = divmod(g0 + k, n_pix)
         f = prim[k]
         t = tfar[k] if f >= 0 else F32(np.inf)
         hit = -1
         nx = ny = nz = F32(0.0)
-        for a in range(bodies.shape[0]):
-            if a != skip:
-                ta, ax, ay, az = hit_body(view[0], view[1], view[2], dirs[k, 0], dirs[k, 1],
-                                          dirs[k, 2], bodies[a, 0], bodies[a, 1], body)
+        for a in range(bodies.shape[1]):
+            if a != skip[b]:
+                ta, ax, ay, az = hit_body(views[b, 0], views[b, 1], views[b, 2], dirs[k, 0],
+                                          dirs[k, 1], dirs[k, 2], bodies[b, a, 0],
+                                          bodies[b, a, 1], body)
                 if ta < t:
                     t, hit, nx, ny, nz = ta, a, ax, ay, az
-        p = p0 + k
         if hit >= 0:
             lam = light[0] + light[1] * abs(nx * light[2] + ny * light[3] + nz * light[4])
             j = hit % palette.shape[0]
@@ -225,15 +229,16 @@ def warm_up() -> None:
     n = 2
     cam = np.zeros((n, 3), F32)
     cam[:, 0] = 1.0
-    view = np.array([0, 0, 0.5, 1, 0], F32)
+    views = np.array([[0, 0, 0.5, 1, 0]], F32)
     origins, dirs = np.zeros((n, 3), F32), np.zeros((n, 3), F32)
-    fill_rays(cam, 0, view, origins, dirs)
+    fill_rays(cam, views, 0, origins, dirs)
     tables = ShadingTables(np.zeros((1, 6), F32), np.ones((1, 3), F32), np.zeros(1, np.int32),
                            np.zeros((1, 2, 2, 3), np.uint8), Lighting().as_array(),
                            BODY_PALETTE.astype(F32))
     shade_chunk(np.zeros(n, np.int32), np.zeros(n, F32), np.zeros(n, F32), np.ones(n, F32),
-                dirs, view, np.array([[2.0, 0.0]], F32), -1, np.array([0.2, 0, 1], F32),
+                dirs, 0, views, np.array([[[2.0, 0.0]]], F32), np.full(1, -1, np.int64),
+                np.array([0.2, 0, 1], F32),
                 tables.face_uv, tables.face_color, tables.face_material, tables.textures,
                 tables.light, tables.palette, np.zeros((1, 3, n), np.uint8),
-                np.zeros((1, n), F32), np.zeros((1, n), np.int32), 0, 0, True)
+                np.zeros((1, n), F32), np.zeros((1, n), np.int32), True)
 

@@ -41,7 +41,7 @@ def _hit_body(o: wp.vec3, d: wp.vec3, cx: float, cy: float, body: wp.vec3) -> wp
     px, py = o[0] - cx, o[1] - cy
     c = px * px + py * py - r * r
     best = wp.inf
-    nx, ny, nz = float(0.0), float(0.0), float(0.0)
+    nx, ny, nz = 0.0, 0.0, 0.0
     if c <= 0.0 and o[2] >= z0 and o[2] <= z1:
         return wp.vec4(best, nx, ny, nz)
     a = d[0] * d[0] + d[1] * d[1]
@@ -84,7 +84,7 @@ def _render_kernel(mesh: wp.uint64, cam: wp.array(dtype=wp.vec3),
     t = wp.inf
     if q.result:
         t = q.t
-    hit = int(-1)
+    hit = -1
     n = wp.vec3(0.0, 0.0, 0.0)
     for a in range(num_bodies):
         if a != skip[b]:

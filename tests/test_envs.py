@@ -1,0 +1,110 @@
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test, parallel_seed_test
+
+from collavn.envs import EnvConfig, VectorEnv, make_parallel_env
+from collavn.errors import ActionError
+from collavn.metrics import AgentRecord
+
+SMALL = {"panorama_width": 64, "panorama_height": 16, "goal_size": 16, "difficulty": "easy",
+         "max_steps": 12}
+
+
+def test_pettingzoo_parallel_api(open_room):
+    env = make_parallel_env(open_room, num_agents=3, **SMALL)
+    parallel_api_test(env, num_cycles=30)
+
+
+def test_pettingzoo_parallel_seed(open_room):
+    parallel_seed_test(lambda: make_parallel_env(open_room, num_agents=2, **SMALL))
+
+
+def test_parallel_env_observations_and_render(open_room):
+    env = make_parallel_env(open_room, num_agents=2, depth=True, gt_map=True, **SMALL)
+    obs, _ = env.reset(seed=3)
+    assert set(obs) == {"agent_0", "agent_1"}
+    o = obs["agent_0"]
+    assert o["panorama"].shape == (3, 16, 64) and o["panorama"].dtype == np.uint8
+    assert o["goal"].shape == (3, 16, 16)
+    assert o["depth"].shape == (16, 64)
+    assert (o["depth"][8:] > 0).all()  # below the horizon: floor or walls everywhere
+    assert (o["depth"][:4] == 0).any()  # no ceiling in this room: no hit = 0
+    assert o["gt_map"].shape == (2, 64, 64)
+    assert o["gt_map"][1].sum() > o["gt_map"][0].sum() > 0  # sees walls, explored more
+    np.testing.assert_array_equal(o["pose"], 0.0)  # the start frame
+    picture = env.render()
+    assert picture.ndim == 3 and picture.shape[2] == 3 and picture.shape[1] > 64 + 16
+
+
+def test_bad_actions_name_the_agent(open_room):
+    env = make_parallel_env(open_room, num_agents=2, **SMALL)
+    env.reset(seed=0)
+    with pytest.raises(ActionError, match="agent_1"):
+        env.step({"agent_0": np.zeros(2), "agent_1": np.array([np.nan, 0.0])})
+    with pytest.raises(ActionError, match="no action given for live agent agent_1"):
+        env.step({"agent_0": np.zeros(2)})
+    with pytest.raises(ActionError, match="shape"):
+        env.step({"agent_0": np.zeros(3), "agent_1": np.zeros(2)})
+
+
+def test_other_agents_are_visible_but_not_oneself(open_room):
+    env = VectorEnv([open_room], 1, EnvConfig(num_agents=2, panorama_width=128,
+                                              panorama_height=32, goal_size=16), seed=0)
+    env.reset(seed=0)
+    world = env.groups[0][1]
+    world.position[0] = [[3.0, 4.0], [4.5, 4.0]]  # agent_1 1.5 m ahead of agent_0
+    world.yaw[0] = [0.0, 0.0]
+    sensors = env.groups[0][2]
+    views = sensors.panoramas(world.poses())
+    bare = sensors.renderer.render(world.poses()[0], "panorama").depth  # no bodies at all
+    ahead = views.depth[0, 0, 16:, 64]  # agent_0: below the horizon, straight ahead
+    assert ahead.min() == pytest.approx(1.5 - 0.18, abs=0.05)  # agent_1's body front
+    assert (ahead <= bare[0, 16:, 64]).all() and (ahead < bare[0, 16:, 64]).any()
+    # agent_1 sees exactly what it would see with no bodies: its own is never drawn,
+    # and agent_0 stands behind it, out of this column
+    np.testing.assert_array_equal(views.depth[0, 1, :, 64], bare[1, :, 64])
+
+
+def test_vector_env_autoresets_and_reports_records(open_room):
+    cfg = EnvConfig(num_agents=2, **SMALL)
+    env = VectorEnv([open_room], 3, cfg, seed=1)
+    obs, _ = env.reset(seed=1)
+    rng = np.random.default_rng(0)
+    seen: list[AgentRecord] = []
+    for _ in range(cfg.max_steps):
+        obs, reward, term, trunc, info = env.step(rng.uniform(-1, 1, (3, 2, 2)))
+        assert reward.shape == term.shape == trunc.shape == (3, 2)
+        assert not (term & trunc).any()
+        seen += info["episode_records"]
+        for e in np.flatnonzero(info["episode_done"]):
+            assert obs["step"][e].tolist() == [0, 0] and obs["active"][e].all()
+    assert len(seen) == 6  # every env finished once by T = 12
+    for r in seen:
+        assert r.steps <= cfg.max_steps and r.path_length >= 0
+        assert r.success == (r.final_distance <= 1.0)
+
+
+def test_same_seed_same_trajectories_and_observations(door_scene):
+    def rollout(seed):
+        env = VectorEnv([door_scene], 2, EnvConfig(num_agents=2, odometry_noise=0.01, **SMALL),
+                        seed=seed)
+        obs, _ = env.reset(seed=seed)
+        out = [obs["panorama"].copy(), obs["pose_delta"].copy()]
+        rng = np.random.default_rng(seed)
+        for _ in range(8):
+            obs, r, *_ = env.step(rng.uniform(-1, 1, (2, 2, 2)))
+            out += [obs["panorama"].copy(), obs["pose_delta"].copy(), r.copy()]
+        return out
+
+    a, b, c = rollout(5), rollout(5), rollout(6)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert any(not np.array_equal(x, y) for x, y in zip(a, c, strict=True))
+
+
+def test_episodes_of_another_scene_are_refused(open_room, door_scene):
+    from collavn.datasets.generator import sample_episodes
+
+    eps = sample_episodes(door_scene, "commongoal", 2, "easy", 1, np.random.default_rng(0))
+    with pytest.raises(Exception, match="made for scene door"):
+        VectorEnv([open_room], 1, EnvConfig(num_agents=2, **SMALL), episodes=[eps])
