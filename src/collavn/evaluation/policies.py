@@ -16,8 +16,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from collavn.scenes.navigation import GeodesicField
 from collavn.scenes.scene import Scene
-from collavn.simulation.kinematics import AgentParams, wrap_angle
+from collavn.simulation.kinematics import AgentParams, drive, wrap_angle
 
 
 class Policy(Protocol):
@@ -51,11 +52,15 @@ class RandomPolicy:
 class OraclePolicy:
     """Follows the geodesic shortest path with the robot's own kinematics.
 
-    Needs privileged observations (``EnvConfig(privileged=True)``): the world pose,
-    the goal position and the scene index. Each step it picks the farthest point of
-    the shortest path within ``lookahead`` metres that is in straight view on the
-    navigable grid, turns towards it and drives as far as the turn allows. It is the
-    ceiling a learned agent can hope for on these kinematics.
+    Needs privileged observations (``EnvConfig(privileged=True)``): world poses, goal
+    positions and the scene index. Each step it aims at the farthest point of the
+    shortest path within ``lookahead`` metres that is in straight view, turning
+    towards it and driving as far as the turn allows (pure pursuit). That action is
+    first simulated with the real kinematics against the scene and the other agents
+    of the env; if it would collide (an arc clipping a corner, a robot in the way),
+    the oracle instead takes the collision-free action among a small grid whose end
+    point is nearest the goal on a geodesic field in which the other robots' bodies
+    are obstacles. It is the ceiling a learned agent can hope for on these kinematics.
     """
 
     def __init__(self, scenes: Sequence[Scene], params: AgentParams | None = None,
@@ -63,13 +68,15 @@ class OraclePolicy:
         self.scenes = list(scenes)
         self.params = params or AgentParams()
         self.lookahead = lookahead
+        v, w = np.meshgrid([1.0, 0.6, 0.3, 0.0], np.linspace(-1.0, 1.0, 9))
+        self._grid = np.stack([v.ravel(), w.ravel()], axis=1)
 
     def initial_state(self, num_envs: int, num_agents: int) -> None:
         """Memoryless (paths are recomputed from the current pose)."""
         return None
 
     def act(self, obs: dict[str, np.ndarray], state: None) -> tuple[np.ndarray, None]:
-        """Steer every active agent along its shortest path."""
+        """Steer every active agent along its shortest path, around obstacles."""
         if "world_pose" not in obs:
             raise KeyError("the oracle needs privileged observations: "
                            "EnvConfig(privileged=True)")
@@ -77,17 +84,55 @@ class OraclePolicy:
         actions = np.zeros((*active.shape, 2))
         for e, n in zip(*np.nonzero(active), strict=True):
             scene = self.scenes[int(obs["scene_index"][e])]
-            target = self._target(scene, pose[e, n, :2], goal[e, n])
-            actions[e, n] = self.steer(pose[e, n], target)
+            field = scene.geodesic_field(goal[e, n])
+            pursuit = self.steer(pose[e, n], self._target(scene, field, pose[e, n, :2]))
+            actions[e, n] = self._safe(scene, pose[e], n, goal[e, n], pursuit)
         return actions, None
 
-    def _target(self, scene: Scene, position: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        path = scene.shortest_path(position, goal)
+    def _target(self, scene: Scene, field: GeodesicField, position: np.ndarray) -> np.ndarray:
+        path = field.path_from(position)
         ahead = np.linalg.norm(path - position, axis=1) <= self.lookahead
-        for k in np.flatnonzero(ahead)[::-1]:
+        for k in np.flatnonzero(ahead[1:])[::-1] + 1:  # path[0] is the agent itself
             if _in_view(scene, position, path[k]):
                 return path[k]
         return path[min(1, len(path) - 1)]
+
+    def _safe(self, scene: Scene, poses: np.ndarray, n: int, goal: np.ndarray,
+              preferred: np.ndarray) -> np.ndarray:
+        """``preferred`` if it drives without contact, else a detour or the best grid action."""
+        _, hit = self._simulate(scene, poses, n, preferred[None])
+        if not hit[0]:
+            return preferred
+        # Plan around the other robots: their bodies become obstacles for this field.
+        others = np.delete(poses[:, :2], n, axis=0)
+        blocked = scene.nav.discs(others, 2 * self.params.radius)
+        field = scene.nav.geodesic_field(goal, blocked=blocked)
+        candidates = self._grid
+        if np.isfinite(field.distance(poses[n, :2])):
+            detour = self.steer(poses[n], self._target(scene, field, poses[n, :2]))
+            candidates = np.concatenate([detour[None], self._grid])
+        end, hit = self._simulate(scene, poses, n, candidates)
+        score = field.distance(end)
+        score = np.where(hit | ~np.isfinite(score), 1e6 + score, score)
+        if len(candidates) > len(self._grid) and not hit[0]:
+            return candidates[0]
+        score[np.isnan(score)] = np.inf
+        return candidates[int(np.argmin(score))]
+
+    def _simulate(self, scene: Scene, poses: np.ndarray, n: int,
+                  candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """End positions ``(K, 2)`` and contact flags ``(K,)`` of agent ``n`` per action.
+
+        Each candidate runs in its own copy of the env; the other agents stand still.
+        """
+        k, agents = len(candidates), len(poses)
+        moving = np.zeros((k, agents), dtype=bool)
+        moving[:, n] = True
+        action = np.zeros((k, agents, 2))
+        action[:, n] = candidates
+        out = drive(scene.nav, np.broadcast_to(poses[:, :2], (k, agents, 2)),
+                    np.broadcast_to(poses[:, 2], (k, agents)), action, moving, self.params)
+        return out.position[:, n], out.collided[:, n]
 
     def steer(self, pose: np.ndarray, target: np.ndarray) -> np.ndarray:
         """Action turning towards ``target`` and driving as far as is safe, ``(2,)``."""

@@ -94,12 +94,14 @@ def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: 
             ep = before[e]
             assert ep is not None
             paths[e].append(info["final_poses"][e])
-        for rec in info["episode_records"]:
-            done.setdefault(rec.episode_id, []).append(rec)
+        fresh = {r.episode_id for r in info["episode_records"]} - set(done)
+        for rec in info["episode_records"]:  # envs cycle: a repeat run is not recorded
+            if rec.episode_id in fresh:
+                done.setdefault(rec.episode_id, []).append(rec)
         for e in np.flatnonzero(ended):
             ep = before[e]
             assert ep is not None
-            if ep.episode_id in wanted and all(t.episode_id != ep.episode_id
+            if ep.episode_id in fresh and ep.episode_id in wanted and all(t.episode_id != ep.episode_id
                                                for t in trajectories):
                 success = np.array([r.success for r in sorted(done[ep.episode_id],
                                                               key=lambda r: r.agent)])
@@ -107,7 +109,7 @@ def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: 
                                                np.stack(paths[e]), ep.agent_goals,
                                                ep.agent_goal_yaws, success))
             paths[e] = [world.poses()[e]]
-            if on_episode is not None:
+            if on_episode is not None and ep.episode_id in fresh:
                 on_episode(1)
     records = [r for ep in episodes for r in sorted(done[ep.episode_id], key=lambda r: r.agent)]
     return EvaluationResult(records, trajectories)

@@ -118,21 +118,25 @@ def fill_rays(cam_dirs: np.ndarray, views: np.ndarray, g0: int, origins: np.ndar
         origins: ``(n, 3)`` float32 output.
         dirs: ``(n, 3)`` float32 output: ``cam_dirs`` rotated by the view's yaw.
     """
-    n_pix = cam_dirs.shape[0]
-    for k in range(dirs.shape[0]):
-        b, p = divmod(g0 + k, n_pix)
+    n_pix, n = cam_dirs.shape[0], dirs.shape[0]
+    k = 0
+    while k < n:  # one run of consecutive pixels of a view per iteration
+        b, p0 = divmod(g0 + k, n_pix)
+        run = min(n - k, n_pix - p0)
         c, s = views[b, 3], views[b, 4]
-        dx, dy = cam_dirs[p, 0], cam_dirs[p, 1]
-        dirs[k, 0] = c * dx - s * dy
-        dirs[k, 1] = s * dx + c * dy
-        dirs[k, 2] = cam_dirs[p, 2]
-        origins[k, 0] = views[b, 0]
-        origins[k, 1] = views[b, 1]
-        origins[k, 2] = views[b, 2]
+        for i in range(run):
+            dx, dy = cam_dirs[p0 + i, 0], cam_dirs[p0 + i, 1]
+            dirs[k + i, 0] = c * dx - s * dy
+            dirs[k + i, 1] = s * dx + c * dy
+            dirs[k + i, 2] = cam_dirs[p0 + i, 2]
+            origins[k + i, 0] = views[b, 0]
+            origins[k + i, 1] = views[b, 1]
+            origins[k + i, 2] = views[b, 2]
+        k += run
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def hit_body(ox, oy, oz, dx, dy, dz, cx, cy, body):  # type: ignore[no-untyped-def]  # pragma: no cover
+def hit_body(ox, oy, oz, dx, dy, dz, cx, cy, body):  # pragma: no cover - compiled
     """Entry distance of a ray into a closed vertical cylinder, and the normal there.
 
     ``body`` is ``(radius, z_bottom, z_top)`` float32. Returns ``(t, nx, ny, nz)``
@@ -161,27 +165,46 @@ def hit_body(ox, oy, oz, dx, dy, dz, cx, cy, body):  # type: ignore[no-untyped-d
     return best, nx, ny, nz
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _texel(f, w1, w2, face_uv, face_material, textures):  # pragma: no cover - compiled
+    """Row and column of the texel that a hit on face ``f`` at barycentric ``w1, w2`` samples."""
+    size = textures.shape[1]
+    u = face_uv[f, 0] + w1 * face_uv[f, 2] + w2 * face_uv[f, 4]
+    v = face_uv[f, 1] + w1 * face_uv[f, 3] + w2 * face_uv[f, 5]
+    col = min(int((u - np.floor(u)) * size), size - 1)
+    row = size - 1 - min(int((v - np.floor(v)) * size), size - 1)
+    return row, col
+
+
 @numba.njit(cache=True, nogil=True)
-def shade_chunk(prim, bu, bv, tfar, dirs, g0, views, bodies, skip, body,  # type: ignore[no-untyped-def]
+def shade_chunk(prim, bu, bv, tfar, dirs, g0, views, bodies, skip, body,
                 face_uv, face_color, face_material, textures, light, palette,
                 rgb, depth, ids, write_ids):  # pragma: no cover - compiled
     """Shade the cast rays ``g0 : g0 + n`` (numbered as in :func:`fill_rays`).
 
     Args:
-        prim, bu, bv, tfar: ``(n,)`` Embree results: triangle (−1 = miss), barycentric
-            weights of corners 1 and 2, hit distance.
-        dirs: ``(n, 3)`` float32 world ray directions; ``g0`` the first ray's number.
+        prim: ``(n,)`` int32 triangle hit by each ray (−1: none), from Embree.
+        bu: ``(n,)`` float32 barycentric weight of the triangle's corner 1.
+        bv: ``(n,)`` float32 barycentric weight of corner 2.
+        tfar: ``(n,)`` float32 hit distance.
+        dirs: ``(n, 3)`` float32 world ray directions.
+        g0: Number of the chunk's first ray.
         views: ``(B, 5)`` float32 cameras as in :func:`fill_rays`.
-        bodies: ``(B, A, 2)`` float32 body centres per view; ``skip``: ``(B,)`` int64
-            body not drawn in each view (−1: none); ``body``: ``(3,)`` float32
-            radius, bottom z, top z.
-        face_uv, face_color, face_material, textures, light, palette: see
-            :class:`ShadingTables`.
-        rgb: ``(B, 3, N)`` uint8, ``depth``: ``(B, N)`` float32, ``ids``: ``(B, N)``
-            int32 outputs (written only if ``write_ids``).
+        bodies: ``(B, A, 2)`` float32 body centres per view.
+        skip: ``(B,)`` int64 body not drawn in each view (−1: none).
+        body: ``(3,)`` float32 body radius, bottom z, top z.
+        face_uv: See :class:`ShadingTables`.
+        face_color: See :class:`ShadingTables`.
+        face_material: See :class:`ShadingTables`.
+        textures: See :class:`ShadingTables`.
+        light: See :class:`ShadingTables`.
+        palette: See :class:`ShadingTables`.
+        rgb: ``(B, 3, N)`` uint8 output.
+        depth: ``(B, N)`` float32 output.
+        ids: ``(B, N)`` int32 output, written only if ``write_ids``.
         write_ids: Whether to fill ``ids``.
     """
-    size, n_pix = textures.shape[1], rgb.shape[2]
+    n_pix = rgb.shape[2]
     for k in range(prim.shape[0]):
         b, p = divmod(g0 + k, n_pix)
         f = prim[k]
@@ -200,28 +223,18 @@ def shade_chunk(prim, bu, bv, tfar, dirs, g0, views, bodies, skip, body,  # type
             j = hit % palette.shape[0]
             for ch in range(3):
                 rgb[b, ch, p] = np.uint8(min(palette[j, ch] * lam + F32(0.5), F32(255.0)))
-            depth[b, p] = t
-            if write_ids:
-                ids[b, p] = -2 - hit
         elif f >= 0:
-            w1, w2 = bu[k], bv[k]
-            u = face_uv[f, 0] + w1 * face_uv[f, 2] + w2 * face_uv[f, 4]
-            v = face_uv[f, 1] + w1 * face_uv[f, 3] + w2 * face_uv[f, 5]
-            col = min(int((u - np.floor(u)) * size), size - 1)
-            row = size - 1 - min(int((v - np.floor(v)) * size), size - 1)
+            row, col = _texel(f, bu[k], bv[k], face_uv, face_material, textures)
             m = face_material[f]
             for ch in range(3):
                 c = F32(textures[m, row, col, ch]) * face_color[f, ch] + F32(0.5)
                 rgb[b, ch, p] = np.uint8(min(c, F32(255.0)))
-            depth[b, p] = t
-            if write_ids:
-                ids[b, p] = f
         else:
-            for ch in range(3):
-                rgb[b, ch, p] = 0
-            depth[b, p] = 0.0
-            if write_ids:
-                ids[b, p] = -1
+            rgb[b, 0, p] = rgb[b, 1, p] = rgb[b, 2, p] = 0
+            t = F32(0.0)
+        depth[b, p] = t
+        if write_ids:
+            ids[b, p] = -2 - hit if hit >= 0 else f
 
 
 def warm_up() -> None:

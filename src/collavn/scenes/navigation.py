@@ -162,13 +162,37 @@ class NavGrid:
         counts = np.bincount(self.components.ravel())[1:]
         return counts * self.resolution**2
 
-    def geodesic_field(self, goal: np.ndarray) -> GeodesicField:
-        """Fast-marching distance field to ``goal`` within the goal's component."""
+    def geodesic_field(self, goal: np.ndarray,
+                       blocked: np.ndarray | None = None) -> GeodesicField:
+        """Fast-marching distance field to ``goal`` within the goal's component.
+
+        Args:
+            goal: ``(2,)`` world point on navigable floor.
+            blocked: Optional ``(H, W)`` bool of extra cells to avoid (e.g. other
+                robots); ignored where it would cover the goal itself.
+        """
         goal = np.asarray(goal, dtype=np.float64).reshape(2)
         label = int(self.component_at(goal))
         if label == 0:
             raise SceneError(f"goal ({goal[0]:.2f}, {goal[1]:.2f}) is not on navigable floor")
-        return GeodesicField(self, goal, _fast_march(self, goal, self.components == label))
+        region = self.components == label
+        if blocked is not None and not self.lookup(blocked, goal, outside=False):
+            region = region & ~blocked
+        return GeodesicField(self, goal, _fast_march(self, goal, region))
+
+    def discs(self, centres: np.ndarray, radius: float) -> np.ndarray:
+        """``(H, W)`` bool: cells whose centre lies within ``radius`` of any centre."""
+        out = np.zeros(self.shape, dtype=bool)
+        res = self.resolution
+        k = int(np.ceil(radius / res)) + 1
+        for centre in np.asarray(centres, dtype=np.float64).reshape(-1, 2):
+            r0, c0 = (int(v) for v in self.to_cell(centre))
+            rows = np.arange(max(r0 - k, 0), min(r0 + k + 1, self.shape[0]))
+            cols = np.arange(max(c0 - k, 0), min(c0 + k + 1, self.shape[1]))
+            rr, cc = np.meshgrid(rows, cols, indexing="ij")
+            near = np.linalg.norm(self.cell_centers(rr, cc) - centre, axis=-1) <= radius
+            out[rr[near], cc[near]] = True
+        return out
 
 
 class GeodesicField:

@@ -3,9 +3,10 @@
 Shapes: ``E`` environments × ``N`` agents. One action lasts ``step_seconds`` and is
 integrated in ``substeps`` pieces (midpoint heading). **Contact rule: stop.** When a
 substep would put an agent's centre off the navigable grid (closer than its radius to
-the scene) or closer than two radii to another agent, that agent does not translate
-for the rest of the action; its rotation still completes (a circular body can always
-turn in place). Such a step counts as a collision.
+the scene), or its own move would bring it closer than two radii to another agent,
+that agent does not translate for the rest of the action; its rotation still
+completes (a circular body can always turn in place). Such a step counts as a
+collision. An agent moving away from a robot it touches is free to go.
 """
 
 from __future__ import annotations
@@ -67,6 +68,17 @@ def overlapping(position: np.ndarray, radius: float) -> np.ndarray:
     return (d < 2 * radius).any(axis=-1)
 
 
+def _closing_in(before: np.ndarray, after: np.ndarray, limit: float) -> np.ndarray:
+    """``(E, N)``: agent ends closer than ``limit`` to another agent's new position,
+    and closer than it was before moving (so an agent backing away is never blamed).
+    """
+    n = after.shape[1]
+    new = np.linalg.norm(after[:, :, None] - after[:, None, :], axis=-1)
+    old = np.linalg.norm(before[:, :, None] - after[:, None, :], axis=-1)
+    new[:, np.arange(n), np.arange(n)] = np.inf
+    return ((new < limit) & (new < old)).any(axis=-1)
+
+
 def drive(nav: NavGrid, position: np.ndarray, yaw: np.ndarray, action: np.ndarray,
           moving: np.ndarray, params: AgentParams) -> DriveResult:
     """Apply one action to every agent of every env of one scene.
@@ -94,9 +106,10 @@ def drive(nav: NavGrid, position: np.ndarray, yaw: np.ndarray, action: np.ndarra
         candidate = np.where(stopped[..., None], pos, pos + step)
         blocked = ~stopped & ~nav.is_navigable(candidate)
         candidate[blocked] = pos[blocked]
-        # Agents moving into each other: revert until no overlap remains (≤ N rounds).
+        # Agents moving into each other: an agent whose own move brought it within two
+        # radii of another is stopped; repeat until no overlap remains (≤ N rounds).
         for _ in range(pos.shape[1]):
-            clash = overlapping(candidate, params.radius) & ~stopped & ~blocked
+            clash = _closing_in(pos, candidate, 2 * params.radius) & ~stopped & ~blocked
             if not clash.any():
                 break
             blocked |= clash

@@ -1,0 +1,92 @@
+"""Method ``il``: one agent imitates the shortest-path oracle; copies of it act at test.
+
+The learner has no communication (``CommConfig.variant = "none"``) and shared weights,
+so it *is* a single-agent policy; during training every agent of an env runs a copy of
+it and each copy is supervised by the oracle's action towards its own goal (the other
+agents are just moving obstacles, as at test time).
+
+Behaviour cloning: the oracle drives (β = 1) and the policy's mean action regresses
+onto the oracle's action (mean squared error over active agent-steps, through the
+recurrent core over whole sequences). DAgger: the learner drives with probability
+``1 − β`` per env and step, β decaying per update, and is still supervised by the
+oracle's action in the states it visits. The rollout stores the oracle's actions in
+``Rollout.raw_actions``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from collavn.errors import CollavnError
+from collavn.evaluation.policies import Policy
+from collavn.models.policy import ActorCritic
+from collavn.training.config import ImitationConfig
+from collavn.training.ppo import masked_mean, minibatch_envs
+from collavn.training.rollout import Rollout
+
+
+def expert_probability(cfg: ImitationConfig, iteration: int) -> float:
+    """β: the probability that the oracle drives at update ``iteration``."""
+    if not cfg.dagger:
+        return 1.0
+    return max(cfg.beta_min, cfg.beta_decay ** iteration)
+
+
+def expert_actions(expert: Policy, obs: dict[str, np.ndarray]) -> np.ndarray:
+    """The oracle's ``(E, N, 2)`` actions; an env where it fails gets zeros (stand still).
+
+    The oracle plans on the navigation grid; a pose it cannot plan from (e.g. pushed
+    off the grid's connected region by a collision) must not stop a training run.
+    """
+    try:
+        return expert.act(obs, None)[0]
+    except CollavnError:
+        out = np.zeros((*obs["active"].shape, 2))
+        for e in range(out.shape[0]):
+            one = {k: v[e:e + 1] for k, v in obs.items()}
+            try:
+                out[e] = expert.act(one, None)[0][0]
+            except CollavnError:
+                pass
+        return out
+
+
+def mix_actions(learner: np.ndarray, expert: np.ndarray, beta: float,
+                rng: np.random.Generator) -> np.ndarray:
+    """Per env, the expert's ``(N, 2)`` actions with probability β, else the learner's."""
+    use_expert = rng.random(learner.shape[0]) < beta
+    return np.where(use_expert[:, None, None], expert, learner)
+
+
+def imitation_loss(model: ActorCritic, batch: Rollout) -> Tensor:
+    """Mean squared error between the policy mean and the oracle's action, ``(T, E, N)``."""
+    state = batch.initial_state
+    errors = []
+    for t in range(batch.steps):
+        step = model({k: v[t] for k, v in batch.obs.items()}, state, batch.episode_start[t])
+        errors.append(((step.dist.mean - batch.raw_actions[t]) ** 2).sum(-1))
+        state = step.state
+    return masked_mean(torch.stack(errors), batch.active)
+
+
+def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Rollout,
+                     cfg: ImitationConfig, generator: torch.Generator, max_grad_norm: float,
+                     sync_gradients: Callable[[], None] | None = None) -> float:
+    """``epochs`` passes of ``num_minibatches`` steps over a rollout; the mean loss."""
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    losses = []
+    for _ in range(cfg.epochs):
+        for index in minibatch_envs(rollout.rewards.shape[1], cfg.num_minibatches, generator):
+            loss = imitation_loss(model, rollout.select_envs(index))
+            optimizer.zero_grad(set_to_none=False)
+            loss.backward()
+            if sync_gradients is not None:
+                sync_gradients()
+            torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
+            optimizer.step()
+            losses.append(float(loss))
+    return float(np.mean(losses))

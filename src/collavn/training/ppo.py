@@ -1,0 +1,120 @@
+"""The PPO update: clipped surrogate, value loss and entropy over recurrent sequences.
+
+Decentralized critics: each agent's value comes from its own critic head on its own
+input and received message (:class:`collavn.models.policy.AgentTower`); nothing sees
+the joint state. Mini-batches are sets of *envs* — every agent of an env for the whole
+rollout — because agents of one env talk to each other and the recurrent state runs
+along the sequence.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from collavn.models.policy import ActorCritic
+from collavn.training.config import PPOConfig
+from collavn.training.rollout import Rollout
+
+
+@dataclass(frozen=True)
+class PPOStats:
+    """Means over the mini-batches of the last update.
+
+    Attributes:
+        policy_loss: Clipped surrogate loss.
+        value_loss: ``½ (V − R)²``.
+        entropy: Policy entropy.
+        approx_kl: ``E[(r − 1) − log r]`` (Schulman's estimator).
+        clip_fraction: Fraction of ratios outside ``[1 − ε, 1 + ε]``.
+        loss: The total optimised loss.
+    """
+
+    policy_loss: float
+    value_loss: float
+    entropy: float
+    approx_kl: float
+    clip_fraction: float
+    loss: float
+
+
+def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
+    """Mean of ``x`` over the entries where ``mask`` is true (0 if none)."""
+    m = mask.to(x.dtype)
+    return (x * m).sum() / m.sum().clamp(min=1.0)
+
+
+def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Tensor,
+             cfg: PPOConfig) -> tuple[Tensor, dict[str, float]]:
+    """The PPO loss of one mini-batch of sequences ``(T, E_b, N)`` and its statistics."""
+    out = model.evaluate_actions(batch.obs, batch.initial_state, batch.episode_start,
+                                 batch.raw_actions)
+    mask = batch.active
+    adv = advantages
+    if cfg.norm_adv:
+        mean = masked_mean(adv, mask)
+        std = masked_mean((adv - mean) ** 2, mask).sqrt()
+        adv = (adv - mean) / (std + 1e-8)
+    log_ratio = out.log_prob - batch.log_probs
+    ratio = log_ratio.exp()
+    surrogate = torch.max(-adv * ratio,
+                          -adv * ratio.clamp(1.0 - cfg.clip_coef, 1.0 + cfg.clip_coef))
+    policy_loss = masked_mean(surrogate, mask)
+    value_loss = 0.5 * masked_mean((out.value - returns) ** 2, mask)
+    entropy = masked_mean(out.entropy, mask)
+    loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
+    with torch.no_grad():
+        stats = {
+            "policy_loss": float(policy_loss), "value_loss": float(value_loss),
+            "entropy": float(entropy), "loss": float(loss),
+            "approx_kl": float(masked_mean((ratio - 1) - log_ratio, mask)),
+            "clip_fraction": float(masked_mean(((ratio - 1).abs() > cfg.clip_coef).float(),
+                                               mask)),
+        }
+    return loss, stats
+
+
+def minibatch_envs(num_envs: int, num_minibatches: int,
+                   generator: torch.Generator) -> list[Tensor]:
+    """A random split of env indices into ``min(num_minibatches, num_envs)`` groups."""
+    order = torch.randperm(num_envs, generator=generator)
+    return [part for part in torch.tensor_split(order, min(num_minibatches, num_envs))
+            if len(part)]
+
+
+def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Rollout,
+               advantages: Tensor, returns: Tensor, cfg: PPOConfig, generator: torch.Generator,
+               sync_gradients: Callable[[], None] | None = None) -> PPOStats:
+    """``update_epochs`` passes of ``num_minibatches`` gradient steps over one rollout.
+
+    Args:
+        model: The actor-critic (in ``train()`` mode).
+        optimizer: Over the policy parameters.
+        rollout: The collected rollout.
+        advantages: ``(T, E, N)`` from :func:`~collavn.training.rollout.compute_gae`.
+        returns: ``(T, E, N)`` value targets.
+        cfg: PPO settings.
+        generator: Shuffles the mini-batches (seeded: runs are reproducible).
+        sync_gradients: Called between ``backward`` and the optimizer step (distributed
+            runs average gradients over processes here).
+    """
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    totals: dict[str, float] = {}
+    count = 0
+    for _ in range(cfg.update_epochs):
+        for index in minibatch_envs(rollout.rewards.shape[1], cfg.num_minibatches, generator):
+            loss, stats = ppo_loss(model, rollout.select_envs(index), advantages[:, index],
+                                   returns[:, index], cfg)
+            optimizer.zero_grad(set_to_none=False)
+            loss.backward()
+            if sync_gradients is not None:
+                sync_gradients()
+            torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
+            optimizer.step()
+            for k, v in stats.items():
+                totals[k] = totals.get(k, 0.0) + v
+            count += 1
+    return PPOStats(**{k: v / max(count, 1) for k, v in totals.items()})

@@ -1,0 +1,343 @@
+"""The training loop: collect a rollout → bootstrap → GAE → PPO epochs → log → checkpoint.
+
+:func:`train` reads in the algorithm's order; each step is a named function below.
+Method ``il`` replaces "GAE + PPO" by a supervised step on the oracle's actions
+(:mod:`collavn.training.imitation`); the map module learns alongside from its FIFO
+(:mod:`collavn.training.mapping`) during collection.
+
+Reproducibility: every ``checkpoint_interval`` updates is a *sync point* — all seeds
+are re-derived from ``(seed, rank, update)``, every env starts a new episode, the
+recurrent state and the map FIFO are cleared. A checkpoint is written at sync points,
+so a run resumed from one continues exactly like the uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from collavn.envs.config import EnvConfig
+from collavn.envs.vector import VectorEnv
+from collavn.evaluation.policies import OraclePolicy
+from collavn.models.policy import ActorCritic
+from collavn.models.state import AgentState
+from collavn.scenes import load_scene
+from collavn.scenes.splits import scene_specs
+from collavn.training import distributed
+from collavn.training.checkpoint import check_config, load_checkpoint, save_checkpoint
+from collavn.training.config import TrainConfig
+from collavn.training.imitation import (
+    expert_actions,
+    expert_probability,
+    imitation_update,
+    mix_actions,
+)
+from collavn.training.mapping import MapTrainer, policy_parameters
+from collavn.training.ppo import ppo_update
+from collavn.training.rollout import (
+    Rollout,
+    compute_gae,
+    episode_start,
+    obs_to_torch,
+    policy_keys,
+)
+
+CHECKPOINT = "checkpoint.pt"
+
+
+@dataclass
+class Run:
+    """Everything a training process holds between updates."""
+
+    cfg: TrainConfig
+    info: distributed.DistInfo
+    device: torch.device
+    env: VectorEnv
+    model: ActorCritic
+    optimizer: torch.optim.Optimizer
+    maps: MapTrainer
+    expert: OraclePolicy | None
+    obs: dict[str, np.ndarray] = field(default_factory=dict)
+    state: AgentState | None = None
+    iteration: int = 0
+    agent_steps: int = 0
+    generator: torch.Generator = field(default_factory=torch.Generator)
+    rng: np.random.Generator = field(default_factory=np.random.default_rng)
+    returns: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    window: dict[str, deque[float]] = field(default_factory=lambda: {
+        k: deque(maxlen=200) for k in ("success", "return", "length")})
+    started: float = field(default_factory=time.perf_counter)
+
+    @property
+    def steps_per_update(self) -> int:
+        """Agent-steps per update over all processes."""
+        c = self.cfg
+        return c.ppo.rollout_steps * c.num_envs * c.agents * self.info.world_size
+
+
+def env_config(cfg: TrainConfig) -> EnvConfig:
+    """Sensors the run needs: model image sizes, depth/gt maps for the map, oracle info."""
+    m = cfg.model.map
+    return EnvConfig(task=cfg.task, num_agents=cfg.agents, panorama_width=cfg.panorama_width,
+                     panorama_height=cfg.panorama_height, goal_size=cfg.goal_size,
+                     depth=m.use_depth, gt_map=cfg.mapping.enabled,
+                     gt_map_size=round(m.local_size * m.resolution / 0.1),
+                     difficulty=cfg.difficulty, render_threads=cfg.render_threads,
+                     privileged=cfg.method == "il")
+
+
+def set_train_mode(model: nn.Module) -> None:
+    """``train()`` (soft communication gates) with batch-norm statistics frozen.
+
+    Frozen statistics keep log-probabilities at collection and at update equal (PPO's
+    ratio is 1 before the first step) whatever the batch composition.
+    """
+    model.train()
+    for m in model.modules():
+        if isinstance(m, nn.modules.batchnorm._BatchNorm):
+            m.eval()
+
+
+def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device) -> Run:
+    """Scenes, envs, model (same initial weights on every rank), optimizers."""
+    specs = list(cfg.scenes) or scene_specs("train")
+    scenes = [load_scene(s) for s in distributed.shard(specs, info)]
+    env = VectorEnv(scenes, cfg.num_envs, env_config(cfg), seed=info.seed(cfg.seed))
+    torch.manual_seed(cfg.seed)
+    model = ActorCritic(cfg.model, device=device)
+    distributed.broadcast_parameters(model)
+    set_train_mode(model)
+    lr = cfg.imitation.lr if cfg.method == "il" else cfg.ppo.lr
+    optimizer = torch.optim.Adam(policy_parameters(model), lr=lr, eps=1e-5)
+    maps = MapTrainer(model, cfg.mapping, cfg.model.map.use_depth, info.seed(cfg.seed),
+                      distributed.average_gradients if info.enabled else None)
+    expert = OraclePolicy(env.scenes) if cfg.method == "il" else None
+    return Run(cfg, info, device, env, model, optimizer, maps, expert)
+
+
+def sync_point(run: Run) -> None:
+    """Re-derive every seed from (seed, rank, update) and start fresh episodes."""
+    seed = run.info.seed(run.cfg.seed) + 7919 * run.iteration
+    torch.manual_seed(seed)
+    run.generator.manual_seed(seed)
+    run.rng = np.random.default_rng(seed)
+    run.maps.reseed(seed)
+    run.obs, _ = run.env.reset(seed=seed)
+    run.state = run.model.initial_state(run.env.num_envs, run.env.num_agents)
+    run.returns = np.zeros((run.env.num_envs, run.env.num_agents))
+
+
+def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
+    """Step the envs ``rollout_steps`` times with the current policy (or the oracle mix).
+
+    Returns:
+        The rollout (with ``last_value`` bootstrapped) and collection statistics.
+    """
+    cfg, model, device = run.cfg, run.model, run.device
+    keys = policy_keys(cfg.model.map.use_depth)
+    assert run.state is not None
+    obs_t = obs_to_torch(run.obs, keys, device)
+    rollout = Rollout.allocate(cfg.ppo.rollout_steps, obs_t, run.state)
+    beta = expert_probability(cfg.imitation, run.iteration)
+    sent, talking, acting = 0.0, 0.0, 0.0
+    start = time.perf_counter()
+    for t in range(rollout.steps):
+        start_t = episode_start(run.obs, device)
+        out = model.act(obs_t, run.state, start_t)
+        actions = out.action.cpu().numpy().astype(np.float64)
+        stored = out.raw_action
+        if run.expert is not None:
+            expert = expert_actions(run.expert, run.obs)
+            actions = mix_actions(actions, expert, beta, run.rng)
+            stored = torch.as_tensor(expert, dtype=torch.float32, device=device)
+        rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value)
+        active = run.obs["active"]
+        sent += float(out.bytes_sent.cpu().numpy()[active].sum())
+        talking += float((out.bytes_sent.cpu().numpy()[active] > 0).sum())
+        acting += float(active.sum())
+        run.maps.observe(run.obs)
+        run.obs, reward, terminated, truncated, info = run.env.step(actions)
+        rollout.insert_outcome(t, reward, terminated, truncated)
+        track_episodes(run, reward, info)
+        run.state = out.state
+        obs_t = obs_to_torch(run.obs, keys, device)
+    with torch.no_grad():
+        rollout.last_value = model(obs_t, run.state, episode_start(run.obs, device)).value
+    seconds = time.perf_counter() - start
+    return rollout, {"comm/bytes_per_step": sent / max(acting, 1.0),
+                     "comm/rate": talking / max(acting, 1.0),
+                     "perf/collect_seconds": seconds, "imitation/beta": beta}
+
+
+def track_episodes(run: Run, reward: np.ndarray, info: dict[str, Any]) -> None:
+    """Accumulate per-agent returns; remember success, return and length of ended episodes."""
+    run.returns += reward
+    done = info["episode_done"]
+    run.window["return"].extend(run.returns[done].ravel().tolist())
+    run.returns[done] = 0.0
+    for r in info["episode_records"]:
+        run.window["success"].append(float(r.success))
+        run.window["length"].append(float(r.steps))
+
+
+def learn(run: Run, rollout: Rollout) -> dict[str, float]:
+    """GAE + PPO epochs (or the imitation step for ``il``); returns losses to log."""
+    cfg = run.cfg
+    sync = ((lambda: distributed.average_gradients(policy_parameters(run.model)))
+            if run.info.enabled else None)
+    if cfg.method == "il":
+        loss = imitation_update(run.model, run.optimizer, rollout, cfg.imitation,
+                                run.generator, cfg.ppo.max_grad_norm, sync)
+        return {"loss/imitation": loss}
+    advantages, returns = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
+                                      rollout.truncated, rollout.last_value, cfg.ppo.gamma,
+                                      cfg.ppo.gae_lambda)
+    stats = ppo_update(run.model, run.optimizer, rollout, advantages, returns, cfg.ppo,
+                       run.generator, sync)
+    return {f"loss/{k}": v for k, v in stats.__dict__.items()}
+
+
+def summary(run: Run, collect: dict[str, float], losses: dict[str, float],
+            seconds: float) -> dict[str, float]:
+    """Scalars of one update, averaged over processes."""
+    steps = run.steps_per_update / run.info.world_size
+    window = {k: np.asarray(v, dtype=float) for k, v in run.window.items()}
+    scalars = {
+        "episode/success_rate": float(window["success"].mean()) if len(window["success"])
+        else 0.0,
+        "episode/return": float(window["return"].mean()) if len(window["return"]) else 0.0,
+        "episode/length": float(window["length"].mean()) if len(window["length"]) else 0.0,
+        "loss/map": run.maps.last_loss,
+        "perf/collect_agent_steps_per_s": steps / max(collect["perf/collect_seconds"], 1e-9),
+        "perf/agent_steps_per_s": steps / max(seconds, 1e-9),
+        **collect, **losses,
+    }
+    names = sorted(scalars)
+    values = distributed.all_reduce_mean([scalars[k] for k in names], run.device)
+    out = dict(zip(names, values, strict=True))
+    out["perf/agent_steps_per_s"] *= run.info.world_size
+    out["perf/collect_agent_steps_per_s"] *= run.info.world_size
+    return out
+
+
+def checkpoint_payload(run: Run) -> dict[str, Any]:
+    """What a checkpoint holds (everything else is re-derived at sync points)."""
+    return {"config": run.cfg.to_dict(), "iteration": run.iteration,
+            "agent_steps": run.agent_steps, "model": run.model.state_dict(),
+            "optimizer": run.optimizer.state_dict(),
+            "map_optimizer": run.maps.optimizer.state_dict()}
+
+
+def restore(run: Run, path: Path) -> None:
+    """Continue from the checkpoint at ``path`` (same config required)."""
+    payload = load_checkpoint(path, map_location=run.device)
+    check_config(payload, run.cfg, path)
+    run.model.load_state_dict(payload["model"])
+    run.optimizer.load_state_dict(payload["optimizer"])
+    run.maps.optimizer.load_state_dict(payload["map_optimizer"])
+    run.iteration, run.agent_steps = int(payload["iteration"]), int(payload["agent_steps"])
+
+
+def out_of_budget(run: Run) -> bool:
+    """Total steps reached, or the wall-clock budget spent (rank 0 decides for all)."""
+    cfg = run.cfg
+    done = run.agent_steps >= cfg.total_steps
+    if cfg.time_budget_minutes > 0:
+        done |= time.perf_counter() - run.started >= 60.0 * cfg.time_budget_minutes
+    flag = distributed.all_reduce_mean([float(done) if run.info.is_main else 0.0],
+                                       run.device)[0]
+    return flag > 0
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What :func:`train` returns.
+
+    Attributes:
+        iterations: Updates done in total (including before a resume).
+        agent_steps: Agent-steps collected in total (all processes).
+        last: Scalars of the last update.
+        checkpoint: Path of the final checkpoint (rank 0; ``None`` elsewhere).
+    """
+
+    iterations: int
+    agent_steps: int
+    last: dict[str, float]
+    checkpoint: Path | None
+
+
+def train(cfg: TrainConfig, resume: bool = False) -> TrainResult:
+    """Train ``cfg.method`` until ``total_steps`` or the time budget; see the module doc."""
+    info, device = distributed.setup(cfg.device)
+    if cfg.torch_threads > 0:
+        torch.set_num_threads(cfg.torch_threads)
+    out = Path(cfg.out)
+    try:
+        run = build_run(cfg, info, device)
+        if resume and (out / CHECKPOINT).exists():
+            restore(run, out / CHECKPOINT)
+        logger = Logger(run, out) if info.is_main else None
+        last: dict[str, float] = {}
+        first = True
+        while not out_of_budget(run):
+            if first or run.iteration % cfg.checkpoint_interval == 0:
+                sync_point(run)
+                first = False
+            tick = time.perf_counter()
+            rollout, collected = collect_rollout(run)
+            losses = learn(run, rollout)
+            run.iteration += 1
+            run.agent_steps += run.steps_per_update
+            last = summary(run, collected, losses, time.perf_counter() - tick)
+            if logger is not None:
+                logger.log(run, last)
+                if run.iteration % cfg.checkpoint_interval == 0:
+                    save_checkpoint(out / CHECKPOINT, checkpoint_payload(run))
+        path = None
+        if logger is not None:
+            path = save_checkpoint(out / CHECKPOINT, checkpoint_payload(run))
+            logger.close()
+        return TrainResult(run.iteration, run.agent_steps, last, path)
+    finally:
+        distributed.cleanup()
+
+
+class Logger:
+    """Rank 0's outputs: ``config.json``, TensorBoard scalars, a progress bar."""
+
+    def __init__(self, run: Run, out: Path) -> None:
+        from rich.progress import Progress
+        from torch.utils.tensorboard import SummaryWriter
+
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "config.json").write_text(json.dumps(run.cfg.to_dict(), indent=2) + "\n")
+        self.writer = SummaryWriter(str(out), purge_step=run.iteration or None)
+        self.interval = run.cfg.log_interval
+        self.progress = Progress(disable=not run.cfg.progress)
+        self.progress.start()
+        self.task = self.progress.add_task(f"{run.cfg.method}", total=run.cfg.total_steps,
+                                           completed=run.agent_steps)
+
+    def log(self, run: Run, scalars: dict[str, float]) -> None:
+        """Write the scalars of one update and advance the bar."""
+        if run.iteration % self.interval == 0:
+            for k, v in scalars.items():
+                self.writer.add_scalar(k, v, run.agent_steps)
+            self.writer.flush()
+        sr = scalars.get("episode/success_rate", 0.0)
+        self.progress.update(self.task, completed=run.agent_steps,
+                             description=f"{run.cfg.method} upd {run.iteration} SR {sr:.2f} "
+                             f"{scalars['perf/agent_steps_per_s']:.0f} st/s")
+
+    def close(self) -> None:
+        """Flush and stop."""
+        self.writer.close()
+        self.progress.stop()
