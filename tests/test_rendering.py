@@ -230,3 +230,22 @@ def test_warp_and_embree_agree(textured: Scene) -> None:
         assert (a.rgb == b.rgb).all(axis=1)[same].mean() >= 0.9995
         np.testing.assert_allclose(a.depth[same], b.depth[same], rtol=1e-5, atol=1e-5)
     embree.close()
+
+
+def test_render_command_writes_image_and_depth(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from PIL import Image
+
+    from collavn.rendering.command import RenderCommand, parse_pose
+
+    monkeypatch.setenv("COLLAVN_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "pano.png"
+    assert RenderCommand("procedural:0", out=out, width=128, height=32).run() == 0
+    assert Image.open(out).size == (128, 32)
+    depth = np.asarray(Image.open(tmp_path / "pano_depth.png"))
+    assert depth.shape == (32, 128) and depth.max() > depth.min()
+    goal = tmp_path / "goal.png"
+    assert RenderCommand("procedural:0", out=goal, pose="3,3,90", goal=True).run() == 0
+    assert Image.open(goal).size == (128, 128)
+    np.testing.assert_allclose(parse_pose("1,2,90"), [1, 2, np.pi / 2])
+    with pytest.raises(RenderError, match="X,Y,YAW"):
+        parse_pose("1,2")

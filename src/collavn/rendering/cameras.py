@@ -62,7 +62,7 @@ class CameraSpec:
     def __post_init__(self) -> None:
         if self.kind not in ("panorama", "pinhole"):
             raise RenderError(f"unknown camera kind {self.kind!r}: use 'panorama' or 'pinhole'")
-        if not (isinstance(self.width, int) and isinstance(self.height, int)):
+        if not all(isinstance(v, int | np.integer) for v in (self.width, self.height)):
             raise RenderError(f"camera size must be integers, got {self.width}×{self.height}")
         if self.width < 1 or self.height < 1:
             raise RenderError(f"camera size must be positive, got {self.width}×{self.height}")

@@ -46,7 +46,7 @@ class WarpBackend:
         self._tables: list[wp.array] = [wp.array(a, device=device) for a in (
             tables.face_uv, tables.face_color, tables.face_material, tables.textures,
             tables.light, tables.palette)]
-        self._cams: dict[bytes, wp.array] = {}
+        self._cams: dict[int, tuple[np.ndarray, wp.array]] = {}
 
     def close(self) -> None:
         """Nothing to release beyond what garbage collection frees."""
@@ -56,10 +56,11 @@ class WarpBackend:
                ids: np.ndarray | None) -> None:
         """Same contract as :meth:`EmbreeBackend.render`."""
         dev = self.device
-        key = cam_dirs.tobytes()
-        cam = self._cams.get(key)
-        if cam is None:
-            cam = self._cams[key] = wp.array(cam_dirs, dtype=wp.vec3, device=dev)
+        cached = self._cams.get(id(cam_dirs))
+        if cached is None or cached[0] is not cam_dirs:  # upload each camera's rays once
+            cached = self._cams[id(cam_dirs)] = (cam_dirs, wp.array(cam_dirs, dtype=wp.vec3,
+                                                                     device=dev))
+        cam = cached[1]
         n_bodies = bodies.shape[1]
         if n_bodies == 0:
             bodies = np.zeros((len(views), 1, 2), np.float32)

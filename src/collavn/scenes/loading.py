@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +57,8 @@ def load_scene(spec: str, *, cache: bool = True, cache_dir: str | Path | None = 
     if kind == "saved":  # a scene written by Scene.save: nothing to process or cache
         if not Path(value).is_file():
             raise SceneError(f"saved scene not found: {value}")
-        return Scene.load(value)
+        # Its source becomes this file, so episode files made from it can find it again.
+        return replace(Scene.load(value), source=str(Path(value).resolve()))
     nav_config = nav_config or NavConfig()
     key = hashlib.sha256()
     key.update(repr((SCENE_FORMAT_VERSION, kind, sorted(options.items()),
