@@ -58,11 +58,11 @@ def test_bad_inputs_are_clear_errors(tmp_path):
         load_mesh_scene(wrong)
     wall = tmp_path / "wall.ply"
     trimesh.creation.box(extents=(0.1, 5, 2.5)).export(wall)  # a wall, nothing to stand on
-    with pytest.raises(SceneError, match="no navigable area|no floor"):
+    with pytest.raises(SceneError, match=r"no navigable area|no floor"):
         load_mesh_scene(wall)
     room = tmp_path / "room.ply"
     _room_mesh().export(room)
-    with pytest.raises(SceneError, match="no floor at height 5.00"):
+    with pytest.raises(SceneError, match=r"no floor at height 5.00"):
         load_mesh_scene(room, floor_height=5.0)
     with pytest.raises(SceneError, match="scale"):
         load_mesh_scene(room, scale=float("nan"))

@@ -122,5 +122,5 @@ def test_no_floor_at_height_is_a_clear_error():
     b = SceneBuilder(8)
     m = b.material("m", flat_texture((100, 100, 100), 8))
     b.add_box((0, 0, -0.1), (5, 5, 0), m)
-    with pytest.raises(SceneError, match="no floor surface at height z=3.00"):
+    with pytest.raises(SceneError, match=r"no floor surface at height z=3.00"):
         b.build("floor", floor_z=3.0)

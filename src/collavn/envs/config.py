@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -52,7 +53,7 @@ class EnvConfig:
     odometry_noise: float = 0.0
     max_steps: int = 80
     difficulty: str = "mixed"
-    backend: str = "embree"
+    backend: Literal["embree", "warp"] = "embree"
     device: str = "cpu"
     render_threads: int = 2
     privileged: bool = False

@@ -14,7 +14,7 @@ truncated (hit ``max_steps``); the episode is over when ``agents`` is empty.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
@@ -30,7 +30,8 @@ from collavn.scenes.scene import Scene
 class CollaVNParallelEnv(ParallelEnv):
     """Multi-agent visual navigation in one scene (PettingZoo Parallel API)."""
 
-    metadata = {"name": "collavn_v0", "render_modes": ["rgb_array"], "is_parallelizable": True}
+    metadata: ClassVar[dict[str, Any]] = {"name": "collavn_v0", "render_modes": ["rgb_array"],
+                                          "is_parallelizable": True}
 
     def __init__(self, scene: Scene, config: EnvConfig | None = None,
                  episodes: Sequence[Episode] | None = None,

@@ -1,0 +1,1 @@
+"""Evaluation: policies without learning, the runner, and the evaluate/viz/demo commands."""

@@ -98,11 +98,11 @@ def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: 
         for rec in info["episode_records"]:  # envs cycle: a repeat run is not recorded
             if rec.episode_id in fresh:
                 done.setdefault(rec.episode_id, []).append(rec)
-        for e in np.flatnonzero(ended):
+        for k in np.flatnonzero(ended):
+            e = int(k)
             ep = before[e]
             assert ep is not None
-            if ep.episode_id in fresh and ep.episode_id in wanted and all(t.episode_id != ep.episode_id
-                                               for t in trajectories):
+            if ep.episode_id in fresh and ep.episode_id in wanted:
                 success = np.array([r.success for r in sorted(done[ep.episode_id],
                                                               key=lambda r: r.agent)])
                 trajectories.append(Trajectory(ep.episode_id, scene.source,

@@ -22,7 +22,7 @@ scene's floor, in a colour per agent index; ``exclude`` names each view's own bo
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 
@@ -50,6 +50,18 @@ class RenderOutput:
     rgb: np.ndarray
     depth: np.ndarray
     ids: np.ndarray | None = None
+
+
+class Backend(Protocol):
+    """What a ray-casting backend provides (see :meth:`EmbreeBackend.render`)."""
+
+    def render(self, cam_dirs: np.ndarray, views: np.ndarray, bodies: np.ndarray,
+               skip: np.ndarray, body: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
+               ids: np.ndarray | None) -> None:
+        """Fill ``rgb (B, 3, N)``, ``depth (B, N)`` and ``ids (B, N)`` for ``B`` views."""
+
+    def close(self) -> None:
+        """Release threads or device memory."""
 
 
 class Renderer:
@@ -93,7 +105,7 @@ class Renderer:
         self.backend_name = backend
         self.device = device
         tables = ShadingTables.from_scene(scene, lighting or Lighting())
-        self._backend = _make_backend(scene, tables, backend, device, threads, chunk_rays)
+        self._backend: Backend = _make_backend(scene, tables, backend, device, threads, chunk_rays)
         self._dirs = {name: spec.ray_directions() for name, spec in self.cameras.items()}
 
     def close(self) -> None:
@@ -150,7 +162,7 @@ class Renderer:
 
 
 def _make_backend(scene: Scene, tables: ShadingTables, backend: str, device: str,
-                  threads: int, chunk_rays: int) -> EmbreeBackend:
+                  threads: int, chunk_rays: int) -> Backend:
     """Construct the named backend (both expose ``render`` and ``close``)."""
     if backend == "embree":
         if device != "cpu":
@@ -163,7 +175,7 @@ def _make_backend(scene: Scene, tables: ShadingTables, backend: str, device: str
         except ImportError as e:
             raise RenderError("the warp backend needs NVIDIA Warp: pip install warp-lang "
                               f"(or collavn[gpu]); import failed: {e}") from e
-        return WarpBackend(scene, tables, device=device)  # type: ignore[return-value]
+        return WarpBackend(scene, tables, device=device)
     raise RenderError(f"unknown render backend {backend!r}: use 'embree' or 'warp'")
 
 

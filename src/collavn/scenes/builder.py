@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from collavn.errors import SceneError
 from collavn.scenes.navigation import NavConfig
@@ -67,7 +68,7 @@ class SceneBuilder:
         self._uvs.append(np.asarray(uvs, dtype=np.float64).reshape(-1, 3, 2))
         self._mats.append(np.full(len(triangles), material, dtype=np.int32))
 
-    def add_quad(self, corners: np.ndarray, material: int,
+    def add_quad(self, corners: ArrayLike, material: int,
                  uv: np.ndarray | None = None) -> None:
         """Add a planar quad from 4 corners (counter-clockwise seen from its front).
 

@@ -53,7 +53,8 @@ def largest_geodesic(scene: Scene) -> float:
         masked = np.where(np.isfinite(grid), grid, -1.0)
         k = int(np.argmax(masked))
         far = float(masked.flat[k])
-        start = nav.cell_centers(*np.unravel_index(k, grid.shape))
+        row, col = np.unravel_index(k, grid.shape)
+        start = nav.cell_centers(np.asarray(row), np.asarray(col))
     return far
 
 

@@ -22,8 +22,11 @@ def default_cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "collavn"
 
 
-def parse_scene_spec(spec: str) -> tuple[str, int | Path]:
-    """Split a spec into ``("procedural", seed)``, ``("saved", path)`` or ``("mesh", path)``."""
+def parse_scene_spec(spec: str) -> tuple[str, str]:
+    """Split a spec into its kind (``procedural``, ``saved`` or ``mesh``) and its value.
+
+    The value is the seed's digits for ``procedural:SEED`` and the path otherwise.
+    """
     if spec.startswith("procedural:"):
         text = spec.split(":", 1)[1]
         try:
@@ -33,10 +36,10 @@ def parse_scene_spec(spec: str) -> tuple[str, int | Path]:
                              f"e.g. procedural:0") from None
         if seed < 0:
             raise SceneError(f"bad scene spec {spec!r}: the seed must be ≥ 0")
-        return "procedural", seed
+        return "procedural", str(seed)
     if spec.endswith(".npz"):
-        return "saved", Path(spec)
-    return "mesh", Path(spec)
+        return "saved", spec
+    return "mesh", spec
 
 
 def load_scene(spec: str, *, cache: bool = True, cache_dir: str | Path | None = None,
@@ -87,7 +90,7 @@ def load_scene(spec: str, *, cache: bool = True, cache_dir: str | Path | None = 
     return scene
 
 
-def _build(kind: str, value: int | Path, nav_config: NavConfig,
+def _build(kind: str, value: str, nav_config: NavConfig,
            options: dict[str, Any]) -> Scene:
     if kind == "procedural":
         from collavn.scenes.procedural import generate_apartment

@@ -79,6 +79,8 @@ def find_floors(triangles: np.ndarray, bin_size: float = 0.05,
 
     Args:
         triangles: ``(F, 3, 3)`` corners, Z up.
+        bin_size: Height bin in metres.
+        min_fraction: A bin needs this share of the largest bin's area.
     """
     t = triangles.astype(np.float64)
     n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
@@ -105,7 +107,7 @@ def _read_parts(path: Path) -> list[Any]:
     import trimesh
 
     try:
-        loaded = trimesh.load(str(path), force="scene")
+        loaded: Any = trimesh.load(str(path), force="scene")
         parts = [g for g in loaded.dump(concatenate=False)
                  if isinstance(g, trimesh.Trimesh) and len(g.faces)]
     except Exception as e:  # trimesh raises many types on corrupt input

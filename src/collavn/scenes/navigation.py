@@ -120,7 +120,8 @@ class NavGrid:
     @property
     def shape(self) -> tuple[int, int]:
         """``(H, W)`` of the grid."""
-        return self.navigable.shape  # type: ignore[return-value]
+        h, w = self.navigable.shape
+        return int(h), int(w)
 
     @property
     def resolution(self) -> float:

@@ -12,6 +12,7 @@ import io
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -140,8 +141,7 @@ class Scene:
         """Write the scene to an ``.npz`` file (atomically)."""
         path = Path(path)
         buf = io.BytesIO()
-        np.savez_compressed(
-            buf,
+        arrays: dict[str, Any] = dict(
             version=np.int64(SCENE_FORMAT_VERSION),
             name=np.array(self.name), source=np.array(self.source),
             vertices=self.vertices, faces=self.faces, face_uvs=self.face_uvs,
@@ -149,6 +149,7 @@ class Scene:
             textures=self.textures, floor_z=np.float64(self.floor_z),
             **self.nav.to_arrays(),
         )
+        np.savez_compressed(buf, **arrays)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_bytes(buf.getvalue())

@@ -1,0 +1,1 @@
+"""Simulation: differential-drive kinematics with collisions, and the batched world."""

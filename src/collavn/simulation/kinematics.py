@@ -69,8 +69,10 @@ def overlapping(position: np.ndarray, radius: float) -> np.ndarray:
 
 
 def _closing_in(before: np.ndarray, after: np.ndarray, limit: float) -> np.ndarray:
-    """``(E, N)``: agent ends closer than ``limit`` to another agent's new position,
-    and closer than it was before moving (so an agent backing away is never blamed).
+    """``(E, N)``: an agent's own move brought it within ``limit`` of another agent.
+
+    True when it ends closer than ``limit`` to another agent's new position and closer
+    than it was before moving (so an agent backing away is never blamed).
     """
     n = after.shape[1]
     new = np.linalg.norm(after[:, :, None] - after[:, None, :], axis=-1)

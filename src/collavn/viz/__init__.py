@@ -1,0 +1,1 @@
+"""Pictures: top-down maps, view strips, trajectory maps and episode animations."""

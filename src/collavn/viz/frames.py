@@ -16,6 +16,7 @@ def views_strip(panoramas: np.ndarray, goals: np.ndarray, gap: int = 4) -> np.nd
     Args:
         panoramas: ``(N, 3, H, W)`` uint8.
         goals: ``(N, 3, G, G)`` uint8.
+        gap: White pixels between rows and images.
 
     Returns:
         ``(N·(max(H, G) + gap) + gap, W + G + 3·gap + tab, 3)`` uint8.
