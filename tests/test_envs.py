@@ -108,3 +108,21 @@ def test_episodes_of_another_scene_are_refused(open_room, door_scene):
     eps = sample_episodes(door_scene, "commongoal", 2, "easy", 1, np.random.default_rng(0))
     with pytest.raises(Exception, match="made for scene door"):
         VectorEnv([open_room], 1, EnvConfig(num_agents=2, **SMALL), episodes=[eps])
+
+
+def test_random_episode_on_the_real_house(shared_scene, tmp_path):
+    from collavn.scenes import load_scene
+
+    house = load_scene(str(shared_scene("aws_small_house.glb")), cache_dir=tmp_path)
+    env = VectorEnv([house], 2, EnvConfig(num_agents=2, max_steps=10, **{
+        k: v for k, v in SMALL.items() if k != "max_steps"}), seed=0)
+    obs, _ = env.reset(seed=0)
+    assert obs["panorama"].std() > 5  # a textured house, not a blank image
+    rng = np.random.default_rng(0)
+    records = []
+    for _ in range(10):
+        obs, reward, *_, info = env.step(rng.uniform(-1, 1, (2, 2, 2)))
+        records += info["episode_records"]
+        world = env.groups[0][1]
+        assert house.nav.is_navigable(world.position).all()
+    assert len(records) == 4 and all(r.steps <= 10 for r in records)

@@ -124,3 +124,22 @@ def test_no_floor_at_height_is_a_clear_error():
     b.add_box((0, 0, -0.1), (5, 5, 0), m)
     with pytest.raises(SceneError, match=r"no floor surface at height z=3.00"):
         b.build("floor", floor_z=3.0)
+
+
+def test_blocked_field_detours_and_paths_start_next_to_a_blocked_cell(door_scene):
+    nav = door_scene.nav
+    a, g = np.array([2.0, 3.5]), np.array([8.0, 3.5])  # straight through the door
+    robot = np.array([5.05, 3.5])  # a robot standing in the doorway
+    blocked = nav.discs(robot[None], 0.36)
+    assert blocked[nav.to_cell(robot)] and not blocked[nav.to_cell(a)]
+    free_field = nav.geodesic_field(g)
+    assert not np.isfinite(nav.geodesic_field(g, blocked=blocked).distance(a[None])[0])
+    assert np.isfinite(free_field.distance(a[None])[0])  # the door is the only way
+    # a start whose own cell is blocked begins at its best free neighbour
+    own = np.zeros(nav.shape, dtype=bool)
+    own[nav.to_cell(a)] = True
+    beside = nav.geodesic_field(g, blocked=own)
+    assert not np.isfinite(beside.grid[nav.to_cell(a)])
+    path = beside.path_from(a)
+    assert np.isfinite(beside.grid[nav.to_cell(path[1])])
+    np.testing.assert_allclose(path[-1], g)

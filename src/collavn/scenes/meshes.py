@@ -171,6 +171,9 @@ def _appearance(part: Any, size: int, textures: list[np.ndarray],
     key = id(image)
     if key not in by_image:
         by_image[key] = len(textures)
-        rgb = image.convert("RGB").resize((size, size), Image.Resampling.BILINEAR)
+        rgb = image.convert("RGB")
+        # Atlases of a few flat texels must not bleed into each other when enlarged.
+        small = rgb.width <= size and rgb.height <= size
+        rgb = rgb.resize((size, size), Image.Resampling.NEAREST if small else Image.Resampling.BOX)
         textures.append(np.asarray(rgb, dtype=np.uint8))
     return np.asarray(uv, dtype=np.float64), by_image[key], tint

@@ -243,10 +243,15 @@ class GeodesicField:
         """
         r, c = (int(v) for v in self.nav.to_cell(start))
         h, w = self.nav.shape
+        padded = np.pad(self.grid, 1, constant_values=np.inf)
+        if 0 <= r < h and 0 <= c < w and not np.isfinite(self.grid[r, c]):
+            # The start's own cell is cut off (e.g. blocked by a robot): begin at the
+            # best neighbouring cell instead.
+            k = int(np.argmin(padded[r:r + 3, c:c + 3]))
+            r, c = r + k // 3 - 1, c + k % 3 - 1
         if not (0 <= r < h and 0 <= c < w) or not np.isfinite(self.grid[r, c]):
             raise SceneError(f"start ({start[0]:.2f}, {start[1]:.2f}) cannot reach the goal")
         cells = [(r, c)]
-        padded = np.pad(self.grid, 1, constant_values=np.inf)
         for _ in range(h * w):
             window = padded[r:r + 3, c:c + 3]
             k = int(np.argmin(window))

@@ -88,5 +88,5 @@ def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollo
                 sync_gradients()
             torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
             optimizer.step()
-            losses.append(float(loss))
+            losses.append(float(loss.detach()))
     return float(np.mean(losses))

@@ -67,13 +67,11 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
     entropy = masked_mean(out.entropy, mask)
     loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
     with torch.no_grad():
-        stats = {
-            "policy_loss": float(policy_loss), "value_loss": float(value_loss),
-            "entropy": float(entropy), "loss": float(loss),
-            "approx_kl": float(masked_mean((ratio - 1) - log_ratio, mask)),
-            "clip_fraction": float(masked_mean(((ratio - 1).abs() > cfg.clip_coef).float(),
-                                               mask)),
-        }
+        parts = {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy,
+                 "loss": loss, "approx_kl": masked_mean((ratio - 1) - log_ratio, mask),
+                 "clip_fraction": masked_mean(((ratio - 1).abs() > cfg.clip_coef).float(),
+                                              mask)}
+        stats = {k: float(v.detach()) for k, v in parts.items()}
     return loss, stats
 
 

@@ -1,0 +1,109 @@
+"""Checkpoints: atomic writes, refusal of another config, resume == uninterrupted run."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from collavn.errors import CheckpointError
+from collavn.training.checkpoint import load_checkpoint, load_policy, save_checkpoint
+from collavn.training.trainer import CHECKPOINT, train
+from tests.training_fixtures import tiny_config
+
+
+def _params(path: Path) -> dict[str, torch.Tensor]:
+    return load_checkpoint(path)["model"]
+
+
+def test_save_is_atomic_and_leaves_the_old_file_on_failure(tmp_path, monkeypatch):
+    path = tmp_path / "ck.pt"
+    save_checkpoint(path, {"x": torch.arange(3)})
+
+    def broken_save(obj, f):
+        f.write(b"half a checkpoint")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(torch, "save", broken_save)
+    with pytest.raises(OSError):
+        save_checkpoint(path, {"x": torch.arange(5)})
+    monkeypatch.undo()
+    assert load_checkpoint(path)["x"].tolist() == [0, 1, 2]
+    assert sorted(os.listdir(tmp_path)) == ["ck.pt"]  # no temp file left behind
+
+
+def test_corrupt_or_foreign_files_are_refused(tmp_path):
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="cannot read"):
+        load_checkpoint(tmp_path / "bad.pt")
+    torch.save({"model": {}}, tmp_path / "foreign.pt")
+    with pytest.raises(CheckpointError, match="not a collavn"):
+        load_checkpoint(tmp_path / "foreign.pt")
+    with pytest.raises(CheckpointError, match="no checkpoint"):
+        load_checkpoint(tmp_path / "missing.pt")
+
+
+@pytest.fixture(scope="module")
+def resumed_and_straight(tmp_path_factory):
+    """4 updates straight vs 2 updates, stop, resume for 2 more (sync every 2)."""
+    root = tmp_path_factory.mktemp("resume")
+    cfg = tiny_config("ours", out=str(root / "straight"))
+    per_update = cfg.ppo.rollout_steps * cfg.num_envs * cfg.agents
+    straight = train(replace(cfg, total_steps=4 * per_update))
+    part = replace(cfg, out=str(root / "resumed"), total_steps=2 * per_update)
+    first = train(part)
+    resumed = train(replace(part, total_steps=4 * per_update), resume=True)
+    return cfg, root, straight, first, resumed
+
+
+def test_resume_gives_bit_identical_parameters(resumed_and_straight):
+    cfg, root, straight, first, resumed = resumed_and_straight
+    assert (first.iterations, resumed.iterations, straight.iterations) == (2, 4, 4)
+    a, b = _params(root / "straight" / CHECKPOINT), _params(root / "resumed" / CHECKPOINT)
+    assert a.keys() == b.keys()
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+    # ...and training did change them.
+    fresh = tiny_config("ours")
+    torch.manual_seed(fresh.seed)
+    from collavn.models.policy import ActorCritic
+
+    init = ActorCritic(fresh.model).state_dict()
+    assert any(not torch.equal(init[k], a[k]) for k in a)
+
+
+def test_run_directory_holds_config_and_tensorboard(resumed_and_straight):
+    cfg, root, *_ = resumed_and_straight
+    saved = json.loads((root / "straight" / "config.json").read_text())
+    assert saved["method"] == "ours" and saved["model"]["comm"]["variant"] == "memory"
+    assert saved["ppo"]["rollout_steps"] == cfg.ppo.rollout_steps
+    assert any(p.name.startswith("events.out.tfevents") for p in (root / "straight").iterdir())
+
+
+def test_resume_with_another_config_is_refused(resumed_and_straight):
+    cfg, root, *_ = resumed_and_straight
+    other = replace(cfg, out=str(root / "straight"), ppo=replace(cfg.ppo, lr=1.0))
+    with pytest.raises(CheckpointError, match=r"different configuration.*ppo\.lr"):
+        train(other, resume=True)
+
+
+def test_checkpoint_loads_as_an_evaluation_policy_for_any_n(resumed_and_straight):
+    cfg, root, *_ = resumed_and_straight
+    policy, overrides = load_policy(root / "straight" / CHECKPOINT)
+    assert overrides == {"panorama_width": 64, "panorama_height": 16, "goal_size": 16}
+    rng = np.random.default_rng(0)
+    for n in (2, 3):
+        obs = {"panorama": rng.integers(0, 255, (1, n, 3, 16, 64), dtype=np.uint8),
+               "goal": rng.integers(0, 255, (1, n, 3, 16, 16), dtype=np.uint8),
+               "pose_delta": np.zeros((1, n, 3), np.float32),
+               "active": np.ones((1, n), bool), "step": np.zeros((1, n), np.int64)}
+        state = policy.initial_state(1, n)
+        a1, state = policy.act(obs, state)
+        a2, _ = policy.act(obs, policy.initial_state(1, n))
+        assert a1.shape == (1, n, 2) and np.all(np.abs(a1) <= 1.0)
+        np.testing.assert_array_equal(a1, a2)  # deterministic
