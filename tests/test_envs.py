@@ -126,3 +126,15 @@ def test_random_episode_on_the_real_house(shared_scene, tmp_path):
         world = env.groups[0][1]
         assert house.nav.is_navigable(world.position).all()
     assert len(records) == 4 and all(r.steps <= 10 for r in records)
+
+
+def test_vector_env_delivers_torch_tensors_on_request(open_room):
+    import torch
+
+    env = VectorEnv([open_room], 2, EnvConfig(num_agents=2, obs_device="cpu", **SMALL), seed=0)
+    obs, _ = env.reset(seed=0)
+    assert isinstance(obs["panorama"], torch.Tensor) and obs["panorama"].dtype == torch.uint8
+    assert obs["panorama"].shape == (2, 2, 3, 16, 64)
+    obs, reward, *_ = env.step(torch.zeros(2, 2, 2))
+    assert isinstance(obs["pose_delta"], torch.Tensor)
+    assert torch.equal(obs["pose_delta"], torch.zeros(2, 2, 3))  # standing still

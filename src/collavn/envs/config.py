@@ -36,6 +36,8 @@ class EnvConfig:
         backend: Renderer backend: ``embree`` (CPU) or ``warp`` (CUDA or CPU).
         device: Renderer device for the ``warp`` backend (``cpu``, ``cuda:0``).
         render_threads: CPU threads for the ``embree`` backend.
+        obs_device: ``None`` for NumPy observations, or a torch device (``"cpu"``,
+            ``"cuda:0"``) to receive every observation as a torch tensor there.
         privileged: Also return ``world_pose (E, N, 3)``, ``goal_position (E, N, 2)``
             and ``scene_index (E,)`` — for experts (the oracle, imitation targets) and
             tools, never for a learning agent's policy.
@@ -56,6 +58,7 @@ class EnvConfig:
     backend: Literal["embree", "warp"] = "embree"
     device: str = "cpu"
     render_threads: int = 2
+    obs_device: str | None = None
     privileged: bool = False
 
     def __post_init__(self) -> None:

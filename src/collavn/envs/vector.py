@@ -90,18 +90,22 @@ class VectorEnv:
         self._last_pose = np.zeros((num_envs, config.num_agents, 3))
 
     # ---------------------------------------------------------------- public
-    def reset(self, seed: int | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    def reset(self, seed: int | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
         """Start a new episode in every env; returns ``(obs, info)``."""
         if seed is not None:
             self.rng = np.random.default_rng(seed)
         for _, world, sensors, source in self.groups:
             local = np.arange(world.num_envs)
             self._start(world, sensors, source, local)
-        return self._observe(), {"episode_done": np.zeros(self.num_envs, dtype=bool)}
+        return self._deliver(self._observe()), {"episode_done": np.zeros(self.num_envs, bool)}
 
-    def step(self, actions: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray,
+    def step(self, actions: np.ndarray) -> tuple[dict[str, Any], np.ndarray, np.ndarray,
                                                  np.ndarray, dict[str, Any]]:
-        """Apply ``(E, N, 2)`` actions; see the module docstring."""
+        """Apply ``(E, N, 2)`` actions (a torch tensor too with ``obs_device``)."""
+        if self.config.obs_device is not None:
+            import torch
+
+            actions = torch.as_tensor(actions).detach().cpu().numpy()
         actions = np.asarray(actions, dtype=np.float64)
         if actions.shape != (self.num_envs, self.num_agents, 2):
             from collavn.errors import ActionError
@@ -127,7 +131,7 @@ class VectorEnv:
                     self._start(world, sensors, source, finished)
         info = {"collided": collided, "episode_done": done, "episode_records": records,
                 "final_poses": final_poses}
-        return self._observe(), reward, terminated, truncated, info
+        return self._deliver(self._observe()), reward, terminated, truncated, info
 
     @property
     def scenes(self) -> list[Scene]:
@@ -151,6 +155,15 @@ class VectorEnv:
         goal_poses = np.concatenate([world.goal[local], world.goal_yaw[local][..., None]], -1)
         self._goal_images[envs[local]] = sensors.goal_images(goal_poses)
         self._last_pose[envs[local]] = world.poses()[local]
+
+    def _deliver(self, obs: dict[str, np.ndarray]) -> dict[str, Any]:
+        """NumPy arrays, or torch tensors on ``config.obs_device``."""
+        if self.config.obs_device is None:
+            return obs
+        import torch
+
+        device = torch.device(self.config.obs_device)
+        return {k: torch.from_numpy(v).to(device) for k, v in obs.items()}
 
     def _observe(self) -> dict[str, np.ndarray]:
         e, n, cfg = self.num_envs, self.num_agents, self.config

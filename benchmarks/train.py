@@ -1,0 +1,71 @@
+"""Training throughput: agent-steps/s of collection alone and of the whole loop.
+
+Runs the real trainer pieces (``collect_rollout`` then ``learn``: GAE + PPO epochs, or
+the imitation step) for a few updates of each preset and prints agent-steps per second.
+The ``paper`` preset (ResNet18 on 512×128) is slow on a CPU: by default it runs with
+fewer envs and a short rollout; the rates are per agent-step, so they compare.
+
+Usage: ``python benchmarks/train.py [--presets cpu paper] [--method ours] [--updates 2]
+[--threads 2] [--paper-envs 2] [--paper-rollout 4]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+
+import torch
+
+from collavn.training.config import TrainConfig
+from collavn.training.distributed import DistInfo
+from collavn.training.trainer import build_run, collect_rollout, learn, sync_point
+
+
+def measure(cfg: TrainConfig, updates: int) -> tuple[float, float]:
+    """(collection, whole loop) agent-steps/s over ``updates`` updates after a warm-up."""
+    run = build_run(cfg, DistInfo(), torch.device(cfg.device))
+    sync_point(run)
+    rollout, _ = collect_rollout(run)  # warm-up
+    learn(run, rollout)
+    collect_s = total_s = 0.0
+    for _ in range(updates):
+        t0 = time.perf_counter()
+        rollout, _ = collect_rollout(run)
+        t1 = time.perf_counter()
+        learn(run, rollout)
+        collect_s += t1 - t0
+        total_s += time.perf_counter() - t0
+    steps = updates * cfg.ppo.rollout_steps * cfg.num_envs * cfg.agents
+    return steps / collect_s, steps / total_s
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--presets", nargs="+", default=["cpu", "paper"])
+    parser.add_argument("--method", default="ours")
+    parser.add_argument("--updates", type=int, default=2)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--paper-envs", type=int, default=2)
+    parser.add_argument("--paper-rollout", type=int, default=4)
+    parser.add_argument("--scenes", type=int, default=8, help="training scenes to load")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    from collavn.scenes.splits import scene_specs
+
+    scenes = tuple(scene_specs("train")[: args.scenes])
+    print(f"method {args.method}, {args.threads} torch threads, {args.updates} updates")
+    print(f"{'preset':<8}{'envs':>6}{'agents':>8}{'T':>5}{'collect st/s':>15}{'loop st/s':>12}")
+    for preset in args.presets:
+        cfg = TrainConfig.preset_config(preset, method=args.method, scenes=scenes,
+                                        progress=False, render_threads=args.threads)
+        if preset == "paper":
+            cfg = replace(cfg, num_envs=args.paper_envs,
+                          ppo=replace(cfg.ppo, rollout_steps=args.paper_rollout))
+        collect, loop = measure(cfg.resolved(), args.updates)
+        print(f"{preset:<8}{cfg.num_envs:>6}{cfg.agents:>8}{cfg.ppo.rollout_steps:>5}"
+              f"{collect:>15.1f}{loop:>12.1f}")
+
+
+if __name__ == "__main__":
+    main()
