@@ -121,7 +121,7 @@ def test_random_episode_on_the_real_house(shared_scene, tmp_path):
     rng = np.random.default_rng(0)
     records = []
     for _ in range(10):
-        obs, reward, *_, info = env.step(rng.uniform(-1, 1, (2, 2, 2)))
+        obs, _, *_, info = env.step(rng.uniform(-1, 1, (2, 2, 2)))
         records += info["episode_records"]
         world = env.groups[0][1]
         assert house.nav.is_navigable(world.position).all()
@@ -135,6 +135,6 @@ def test_vector_env_delivers_torch_tensors_on_request(open_room):
     obs, _ = env.reset(seed=0)
     assert isinstance(obs["panorama"], torch.Tensor) and obs["panorama"].dtype == torch.uint8
     assert obs["panorama"].shape == (2, 2, 3, 16, 64)
-    obs, reward, *_ = env.step(torch.zeros(2, 2, 2))
+    obs, *_ = env.step(torch.zeros(2, 2, 2))
     assert isinstance(obs["pose_delta"], torch.Tensor)
     assert torch.equal(obs["pose_delta"], torch.zeros(2, 2, 3))  # standing still

@@ -10,12 +10,12 @@ import torch
 
 from collavn.training.command import Train
 from collavn.training.config import TrainConfig
+from collavn.training.distributed import DistInfo
 from collavn.training.imitation import imitation_loss, imitation_update
 from collavn.training.ppo import ppo_loss, ppo_update
 from collavn.training.rollout import compute_gae
 from collavn.training.trainer import build_run, collect_rollout, sync_point
-from collavn.training.distributed import DistInfo
-from tests.training_fixtures import tiny_config
+from training_fixtures import tiny_config
 
 
 def test_gae_hand_computed_with_termination_and_truncation():
@@ -104,10 +104,38 @@ def test_ppo_loss_goes_down_on_a_fixed_batch():
 def test_imitation_loss_goes_down_on_a_fixed_batch():
     cfg, run, rollout = _fixed_batch("il")
     assert rollout.active.any()
-    before = float(imitation_loss(run.model, rollout))
+    before = float(imitation_loss(run.model, rollout).detach())
     il = dataclasses.replace(cfg.imitation, epochs=15, num_minibatches=1, lr=1e-3)
     for group in run.optimizer.param_groups:
         group["lr"] = 1e-3
-    imitation_update(run.model, run.optimizer, rollout, il, run.generator, 1.0)
-    after = float(imitation_loss(run.model, rollout))
+    imitation_update(run.model, run.optimizer, [rollout], il, run.generator, 1.0)
+    after = float(imitation_loss(run.model, rollout).detach())
     assert after < 0.7 * before
+
+
+def test_map_fifo_keeps_the_newest_samples():
+    from collavn.training.mapping import MapFIFO
+
+    fifo = MapFIFO(capacity=3)
+    for start in (0, 2):
+        fifo.push({"x": np.arange(start, start + 2)[:, None]})
+    assert fifo.size == 3
+    assert sorted(fifo.data["x"][:, 0].tolist()) == [1, 2, 3]
+    batch = fifo.sample(50, np.random.default_rng(0))["x"][:, 0]
+    assert set(batch.tolist()) == {1, 2, 3}
+    fifo.clear()
+    assert fifo.size == 0
+
+
+def test_dagger_mixing_and_beta_schedule():
+    from collavn.training.config import ImitationConfig
+    from collavn.training.imitation import expert_probability, mix_actions
+
+    assert expert_probability(ImitationConfig(dagger=False), 50) == 1.0
+    cfg = ImitationConfig(dagger=True, beta_decay=0.5, beta_min=0.2)
+    assert [expert_probability(cfg, i) for i in range(4)] == [1.0, 0.5, 0.25, 0.2]
+    learner, expert = np.zeros((1000, 2, 2)), np.ones((1000, 2, 2))
+    mixed = mix_actions(learner, expert, 0.3, np.random.default_rng(0))
+    per_env = mixed[:, 0, 0]
+    assert np.all(mixed == per_env[:, None, None])  # one choice per env and step
+    assert 0.25 < per_env.mean() < 0.35

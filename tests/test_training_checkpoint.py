@@ -14,7 +14,7 @@ import torch
 from collavn.errors import CheckpointError
 from collavn.training.checkpoint import load_checkpoint, load_policy, save_checkpoint
 from collavn.training.trainer import CHECKPOINT, train
-from tests.training_fixtures import tiny_config
+from training_fixtures import tiny_config
 
 
 def _params(path: Path) -> dict[str, torch.Tensor]:
@@ -62,7 +62,7 @@ def resumed_and_straight(tmp_path_factory):
 
 
 def test_resume_gives_bit_identical_parameters(resumed_and_straight):
-    cfg, root, straight, first, resumed = resumed_and_straight
+    _, root, straight, first, resumed = resumed_and_straight
     assert (first.iterations, resumed.iterations, straight.iterations) == (2, 4, 4)
     a, b = _params(root / "straight" / CHECKPOINT), _params(root / "resumed" / CHECKPOINT)
     assert a.keys() == b.keys()
@@ -93,7 +93,7 @@ def test_resume_with_another_config_is_refused(resumed_and_straight):
 
 
 def test_checkpoint_loads_as_an_evaluation_policy_for_any_n(resumed_and_straight):
-    cfg, root, *_ = resumed_and_straight
+    _, root, *_ = resumed_and_straight
     policy, overrides = load_policy(root / "straight" / CHECKPOINT)
     assert overrides == {"panorama_width": 64, "panorama_height": 16, "goal_size": 16}
     rng = np.random.default_rng(0)

@@ -8,7 +8,7 @@ import socket
 import torch
 import torch.multiprocessing as mp
 
-from tests.training_fixtures import tiny_config
+from training_fixtures import tiny_config
 
 
 def _free_port() -> int:

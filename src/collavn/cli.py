@@ -30,6 +30,8 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
                     "Score random, oracle or a checkpoint on a dataset: records and tables."),
     ("viz",): ("collavn.evaluation.command", "Viz",
                "Trajectory maps and an episode GIF from an evaluation's output."),
+    ("train",): ("collavn.training.command", "Train",
+                 "Train ours / no-mem / no-com (PPO) or il; checkpoints, TensorBoard, resume."),
 }
 
 

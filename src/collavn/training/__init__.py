@@ -1,5 +1,16 @@
 """Training: rollout storage + GAE, decentralized PPO, imitation, map FIFO, distributed runs.
 
-The loop lives in :func:`collavn.training.trainer.train`; ``collavn train`` is
-:class:`collavn.training.command.Train`.
+The loop is :func:`collavn.training.trainer.train` (collect → GAE → PPO epochs → log →
+checkpoint); ``collavn train`` is :class:`collavn.training.command.Train`::
+
+    collavn train --method ours --task commongoal --agents 2 --preset cpu --out runs/ours
+    collavn train --method il --preset cpu --time-budget-minutes 50 --out runs/il
+    collavn train --method ours --preset cpu --out runs/ours --resume
+    torchrun --nproc-per-node 2 -m collavn.cli train --method no-com --preset cpu --out runs/d
+
+Methods: ``ours`` (memory communication), ``no-mem`` (handshake), ``no-com`` (IPPO) —
+all decentralized PPO with per-agent critics — and ``il`` (one agent clones the
+shortest-path oracle; copies of it act at test time). ``random`` lives in
+:mod:`collavn.evaluation.policies`. Presets: ``paper`` keeps the paper's values;
+``cpu`` departs from them as listed in :data:`collavn.training.config.CPU_DEVIATIONS`.
 """

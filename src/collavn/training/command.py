@@ -63,8 +63,8 @@ class Train:
     """Renderer threads per process."""
     torch_threads: int | None = None
     """Torch threads per process (0 = torch's default)."""
-    dagger: bool = False
-    """``il`` only: DAgger instead of plain behaviour cloning."""
+    dagger: bool | None = None
+    """``il`` only: DAgger (True) or plain behaviour cloning (False)."""
     map_updates: int | None = None
     """Map updates each time the map trains."""
     checkpoint_interval: int | None = None
@@ -88,10 +88,11 @@ class Train:
                if getattr(self, k) is not None}
         if self.lr is not None and self.method != "il":
             ppo["lr"] = self.lr
-        imitation: dict[str, Any] = {"dagger": self.dagger}
+        imitation: dict[str, Any] = {} if self.dagger is None else {"dagger": self.dagger}
         if self.lr is not None and self.method == "il":
             imitation["lr"] = self.lr
-        mapping = {} if self.map_updates is None else {"updates": self.map_updates}
+        mapping: dict[str, Any] = ({} if self.map_updates is None
+                                   else {"updates": self.map_updates})
         return replace(cfg, ppo=replace(cfg.ppo, **ppo),
                        imitation=replace(cfg.imitation, **imitation),
                        mapping=replace(cfg.mapping, **mapping)).resolved()

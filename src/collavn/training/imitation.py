@@ -15,7 +15,7 @@ oracle's action in the states it visits. The rollout stores the oracle's actions
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -58,7 +58,7 @@ def expert_actions(expert: Policy, obs: dict[str, np.ndarray]) -> np.ndarray:
 def mix_actions(learner: np.ndarray, expert: np.ndarray, beta: float,
                 rng: np.random.Generator) -> np.ndarray:
     """Per env, the expert's ``(N, 2)`` actions with probability β, else the learner's."""
-    use_expert = rng.random(learner.shape[0]) < beta
+    use_expert = np.asarray(rng.random(learner.shape[0]) < beta)
     return np.where(use_expert[:, None, None], expert, learner)
 
 
@@ -73,20 +73,36 @@ def imitation_loss(model: ActorCritic, batch: Rollout) -> Tensor:
     return masked_mean(torch.stack(errors), batch.active)
 
 
-def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Rollout,
-                     cfg: ImitationConfig, generator: torch.Generator, max_grad_norm: float,
+def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer,
+                     rollouts: Sequence[Rollout], cfg: ImitationConfig,
+                     generator: torch.Generator, max_grad_norm: float,
                      sync_gradients: Callable[[], None] | None = None) -> float:
-    """``epochs`` passes of ``num_minibatches`` steps over a rollout; the mean loss."""
+    """``epochs`` passes over the kept rollouts (shuffled), ``num_minibatches`` steps each.
+
+    Returns:
+        The mean loss.
+    """
     params = [p for group in optimizer.param_groups for p in group["params"]]
     losses = []
     for _ in range(cfg.epochs):
-        for index in minibatch_envs(rollout.rewards.shape[1], cfg.num_minibatches, generator):
-            loss = imitation_loss(model, rollout.select_envs(index))
-            optimizer.zero_grad(set_to_none=False)
-            loss.backward()
-            if sync_gradients is not None:
-                sync_gradients()
-            torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
-            optimizer.step()
-            losses.append(float(loss.detach()))
+        for k in torch.randperm(len(rollouts), generator=generator).tolist():
+            losses += _rollout_steps(model, optimizer, params, rollouts[k], cfg, generator,
+                                     max_grad_norm, sync_gradients)
     return float(np.mean(losses))
+
+
+def _rollout_steps(model: ActorCritic, optimizer: torch.optim.Optimizer,
+                   params: list[torch.nn.Parameter], rollout: Rollout, cfg: ImitationConfig,
+                   generator: torch.Generator, max_grad_norm: float,
+                   sync_gradients: Callable[[], None] | None) -> list[float]:
+    losses = []
+    for index in minibatch_envs(rollout.rewards.shape[1], cfg.num_minibatches, generator):
+        loss = imitation_loss(model, rollout.select_envs(index))
+        optimizer.zero_grad(set_to_none=False)
+        loss.backward()
+        if sync_gradients is not None:
+            sync_gradients()
+        torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
+        optimizer.step()
+        losses.append(float(loss.detach()))
+    return losses

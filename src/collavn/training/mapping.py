@@ -10,20 +10,21 @@ here; the policy optimizer never touches them.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Mapping
+from typing import cast
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
 from collavn.models.mapping import map_loss
-from collavn.models.policy import ActorCritic
+from collavn.models.policy import ActorCritic, AgentTower
 from collavn.training.config import MapTrainConfig
 
 
 def map_parameters(model: ActorCritic) -> Iterator[nn.Parameter]:
     """The weights of every tower's map builder."""
     for tower in model.towers:
-        yield from tower.map_builder.parameters()
+        yield from cast(AgentTower, tower).map_builder.parameters()
 
 
 def policy_parameters(model: ActorCritic) -> list[nn.Parameter]:
@@ -120,6 +121,6 @@ class MapTrainer:
 
     def loss(self, batch: Mapping[str, Tensor]) -> Tensor:
         """Map loss of the first tower's predictor on a batch (shared weights)."""
-        predictor = self.model.towers[0].map_builder.predictor
+        predictor = cast(AgentTower, self.model.towers[0]).map_builder.predictor
         logits, _ = predictor(batch["panorama"], batch.get("depth"))
         return map_loss(logits, batch["gt_map"])

@@ -74,6 +74,7 @@ class Run:
     returns: np.ndarray = field(default_factory=lambda: np.zeros(0))
     window: dict[str, deque[float]] = field(default_factory=lambda: {
         k: deque(maxlen=200) for k in ("success", "return", "length")})
+    demos: deque[Rollout] = field(default_factory=deque)
     started: float = field(default_factory=time.perf_counter)
 
     @property
@@ -133,6 +134,7 @@ def sync_point(run: Run) -> None:
     run.obs, _ = run.env.reset(seed=seed)
     run.state = run.model.initial_state(run.env.num_envs, run.env.num_agents)
     run.returns = np.zeros((run.env.num_envs, run.env.num_agents))
+    run.demos = deque(maxlen=run.cfg.imitation.buffer_rollouts)
 
 
 def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
@@ -194,7 +196,8 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
     sync = ((lambda: distributed.average_gradients(policy_parameters(run.model)))
             if run.info.enabled else None)
     if cfg.method == "il":
-        loss = imitation_update(run.model, run.optimizer, rollout, cfg.imitation,
+        run.demos.append(rollout)
+        loss = imitation_update(run.model, run.optimizer, list(run.demos), cfg.imitation,
                                 run.generator, cfg.ppo.max_grad_norm, sync)
         return {"loss/imitation": loss}
     advantages, returns = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
@@ -311,7 +314,12 @@ def train(cfg: TrainConfig, resume: bool = False) -> TrainResult:
 
 
 class Logger:
-    """Rank 0's outputs: ``config.json``, TensorBoard scalars, a progress bar."""
+    """Rank 0's outputs: ``config.json``, TensorBoard scalars, a progress bar.
+
+    ``episode/*`` scalars average the last 200 agent-episodes that *ended*; short
+    (successful) episodes end more often, so the training success rate over-states the
+    rate per started episode. Score checkpoints with ``collavn evaluate`` on a dataset.
+    """
 
     def __init__(self, run: Run, out: Path) -> None:
         from rich.progress import Progress
