@@ -81,6 +81,28 @@ def test_cli_chain_generate_evaluate_viz(door_scene, tmp_path, capsys):
     assert len(list((tmp_path / "viz").glob("episode_*.gif"))) == 1
 
 
+def test_cli_episode_count_override_and_difficulty_filter(door_scene, tmp_path, capsys):
+    scene_file = tmp_path / "door.npz"
+    door_scene.save(scene_file)
+    data = tmp_path / "data"
+    assert main(["dataset", "generate", "--split", "test", "--episodes", "3", "--scenes",
+                 str(scene_file), "--out", str(data), "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["dataset", "info", str(data), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["episodes"] == 9  # 3 per difficulty
+    assert main(["evaluate", "--policy", "random", "--dataset", str(data), "--difficulty",
+                 "easy", "--out", str(tmp_path / "eval"), "--panorama-width", "32",
+                 "--panorama-height", "8", "--goal-size", "8", "--json"]) == 0
+    table = json.loads(capsys.readouterr().out)
+    assert set(table["random"]["counts"]) >= {"easy"}
+    records = read_records(tmp_path / "eval" / "records.jsonl")
+    assert len(records) == 6 and {r.difficulty for r in records} == {"easy"}
+    assert main(["dataset", "generate", "--episodes", "0", "--scenes", str(scene_file),
+                 "--out", str(data), "--quiet"]) == 2
+    assert "--episodes must be" in capsys.readouterr().err
+
+
 def test_cli_errors_are_short_and_named(tmp_path, capsys):
     assert main(["evaluate", "--policy", "nonsense", "--dataset", str(tmp_path)]) == 2
     assert "not an episode dataset" in capsys.readouterr().err

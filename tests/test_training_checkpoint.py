@@ -107,3 +107,18 @@ def test_checkpoint_loads_as_an_evaluation_policy_for_any_n(resumed_and_straight
         a2, _ = policy.act(obs, policy.initial_state(1, n))
         assert a1.shape == (1, n, 2) and np.all(np.abs(a1) <= 1.0)
         np.testing.assert_array_equal(a1, a2)  # deterministic
+
+
+def test_init_from_loads_weights_and_refuses_another_model(resumed_and_straight):
+    from collavn.training.distributed import DistInfo
+    from collavn.training.trainer import build_run
+
+    cfg, root, *_ = resumed_and_straight
+    source = root / "straight" / CHECKPOINT
+    run = build_run(replace(cfg, init_from=str(source)), DistInfo(), torch.device("cpu"))
+    for name, value in run.model.state_dict().items():
+        torch.testing.assert_close(value, _params(source)[name], rtol=0, atol=0)
+    other = replace(cfg, init_from=str(source),
+                    model=replace(cfg.model, hidden_size=cfg.model.hidden_size * 2))
+    with pytest.raises(CheckpointError, match=r"model config differs.*hidden_size"):
+        build_run(other, DistInfo(), torch.device("cpu"))

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -14,7 +14,9 @@ from rich.table import Table
 
 from collavn.datasets.build import generate_dataset
 from collavn.datasets.episode import DIFFICULTY_BINS
+from collavn.datasets.generator import PRESETS, Preset
 from collavn.datasets.storage import Dataset
+from collavn.errors import DatasetError
 from collavn.scenes.scene import Scene
 
 #: Histogram bin edges of geodesic start-to-goal distances, metres.
@@ -37,6 +39,9 @@ class DatasetGenerate:
     preset: Literal["paper", "small"] = "small"
     """Episode counts: paper (5,000 train per scene; 500 val / 1,000 test per scene and
     difficulty) or small (20 train; 10 val/test per difficulty)."""
+    episodes: int | None = None
+    """Override the preset's count for this split: episodes per scene *per difficulty*
+    for val/test, per scene for train."""
     out: Path = Path("data/episodes")
     """Dataset directory; files go to OUT/<task>_n<N>/<split>/<scene>.json.gz."""
     seed: int = 0
@@ -51,8 +56,14 @@ class DatasetGenerate:
         """Load the scenes, generate, write files and index; print what was written."""
         specs = list(self.scenes) or _default_specs(self.split)
         scenes = [_load_scene(s) for s in specs]
+        preset: str | Preset = self.preset
+        if self.episodes is not None:
+            if self.episodes < 1:
+                raise DatasetError(f"--episodes must be ≥ 1, got {self.episodes}")
+            name = f"{self.preset}-{self.split}{self.episodes}"
+            preset = replace(PRESETS[self.preset], name=name, **{self.split: self.episodes})
         paths = generate_dataset(self.out, scenes, self.task, self.agents, self.split,
-                                 self.preset, self.seed, self.eval_agents,
+                                 preset, self.seed, self.eval_agents,
                                  progress=not self.quiet)
         for p in paths:
             print(p)

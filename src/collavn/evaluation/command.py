@@ -6,7 +6,7 @@ import json
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import tyro
 
@@ -43,21 +43,31 @@ def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0,
 
 def run_evaluation(policy_name: str, dataset: Dataset, base: EnvConfig, num_envs: int = 4,
                    seed: int = 0, keep_trajectories: int = 6, progress: bool = True,
-                   device: str = "cpu") -> tuple[list[AgentRecord], list[Trajectory]]:
-    """Evaluate one policy on every file of ``dataset``; records in file order."""
+                   device: str = "cpu", difficulty: str | None = None,
+                   ) -> tuple[list[AgentRecord], list[Trajectory]]:
+    """Evaluate one policy on every file of ``dataset``; records in file order.
+
+    ``difficulty`` keeps only the episodes of that bin (``easy``, ``medium``, ``hard``).
+    """
     from rich.progress import Progress
 
     records: list[AgentRecord] = []
     trajectories: list[Trajectory] = []
     with Progress(disable=not progress, transient=True) as bar:
-        task = bar.add_task(f"{policy_name}", total=len(dataset))
+        total = sum(difficulty in (None, e.difficulty)
+                    for c in dataset.files.values() for e in c.episodes)
+        task = bar.add_task(f"{policy_name}", total=total)
         for content in dataset.files.values():
             scene = load_scene(content.scene.source)
             content.check_scene(scene)
             policy, overrides = make_policy(policy_name, [scene], seed, device)
             config = replace(base, task=content.task, num_agents=content.num_agents,
                              **overrides)
-            result = evaluate(policy, scene, content.episodes, config, num_envs, seed,
+            episodes = [e for e in content.episodes
+                        if difficulty is None or e.difficulty == difficulty]
+            if not episodes:
+                continue
+            result = evaluate(policy, scene, episodes, config, num_envs, seed,
                               keep_trajectories, on_episode=lambda k: bar.advance(task, k))
             records += result.records
             trajectories += result.trajectories
@@ -78,6 +88,8 @@ class Evaluate:
     """Only this split (default: all in the dataset)."""
     group: str | None = None
     """Only this task setting, e.g. ``commongoal_n2`` or ``adhocoop_n2to3``."""
+    difficulty: Literal["easy", "medium", "hard"] | None = None
+    """Only the episodes of this difficulty bin."""
     num_envs: int = 4
     """Environments stepped together."""
     panorama_width: int = 512
@@ -102,7 +114,10 @@ class Evaluate:
         base = EnvConfig(panorama_width=self.panorama_width,
                          panorama_height=self.panorama_height, goal_size=self.goal_size)
         records, trajectories = run_evaluation(self.policy, dataset, base, self.num_envs,
-                                               self.seed, device=self.device)
+                                               self.seed, device=self.device,
+                                               difficulty=self.difficulty)
+        if not records:
+            raise CollavnError(f"no {self.difficulty} episodes in {self.dataset}")
         table = write_results(self.out, {self.policy: records}, trajectories)
         if self.json:
             print(json.dumps({row.method: {"metrics": row.groups, "counts": row.counts}

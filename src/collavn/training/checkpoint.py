@@ -68,18 +68,19 @@ def check_config(payload: dict[str, Any], config: TrainConfig, path: str | Path)
     saved = TrainConfig.from_dict(payload["config"]).identity()
     current = config.identity()
     if saved != current:
-        diffs = sorted(_differences(saved, current))
+        diffs = sorted(differences(saved, current))
         shown = "; ".join(diffs[:8]) + (" …" if len(diffs) > 8 else "")
         raise CheckpointError(f"checkpoint {path} was written by a different configuration "
                               f"({shown}); resume with the same settings or start a new "
                               f"--out directory")
 
 
-def _differences(a: Any, b: Any, prefix: str = "") -> list[str]:
+def differences(a: Any, b: Any, prefix: str = "") -> list[str]:
+    """``"key: checkpoint A vs now B"`` for every leaf where two config dicts differ."""
     if isinstance(a, dict) and isinstance(b, dict):
         out = []
         for k in sorted(set(a) | set(b)):
-            out += _differences(a.get(k), b.get(k), f"{prefix}{k}.")
+            out += differences(a.get(k), b.get(k), f"{prefix}{k}.")
         return out
     return [] if a == b else [f"{prefix[:-1]}: checkpoint {json.dumps(a)} vs now {json.dumps(b)}"]
 

@@ -69,6 +69,9 @@ class Train:
     """Map updates each time the map trains."""
     checkpoint_interval: int | None = None
     """Updates between checkpoints (sync points)."""
+    init_from: str = ""
+    """Start from this checkpoint's model weights (e.g. an ``il`` run to fine-tune with
+    PPO); the model config must match."""
     progress: bool = True
     """Show a progress bar."""
 
@@ -77,7 +80,8 @@ class Train:
         top: dict[str, Any] = dict(
             method=self.method, task=self.task, agents=self.agents, out=self.out,
             total_steps=self.total_steps, time_budget_minutes=self.time_budget_minutes,
-            seed=self.seed, device=self.device, progress=self.progress)
+            seed=self.seed, device=self.device, progress=self.progress,
+            init_from=self.init_from)
         for name in ("difficulty", "num_envs", "panorama_width", "panorama_height",
                      "goal_size", "render_threads", "torch_threads", "checkpoint_interval"):
             if getattr(self, name) is not None:

@@ -166,6 +166,9 @@ class TrainConfig:
     """Show a progress bar (rank 0)."""
     log_interval: int = 1
     """Write TensorBoard scalars every this many updates."""
+    init_from: str = ""
+    """Start from the model weights of this checkpoint (e.g. an ``il`` run's, to
+    fine-tune it with PPO); its model config must match. Optimizers start fresh."""
 
     def __post_init__(self) -> None:
         if self.method not in METHOD_COMM:

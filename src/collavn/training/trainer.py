@@ -26,13 +26,19 @@ from torch import nn
 
 from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv
+from collavn.errors import CheckpointError
 from collavn.evaluation.policies import OraclePolicy
 from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
 from collavn.scenes import load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.training import distributed
-from collavn.training.checkpoint import check_config, load_checkpoint, save_checkpoint
+from collavn.training.checkpoint import (
+    check_config,
+    differences,
+    load_checkpoint,
+    save_checkpoint,
+)
 from collavn.training.config import TrainConfig
 from collavn.training.imitation import (
     expert_actions,
@@ -114,6 +120,8 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     env = VectorEnv(scenes, cfg.num_envs, env_config(cfg), seed=info.seed(cfg.seed))
     torch.manual_seed(cfg.seed)
     model = ActorCritic(cfg.model, device=device)
+    if cfg.init_from:
+        initialise_from(model, cfg, cfg.init_from)
     distributed.broadcast_parameters(model)
     set_train_mode(model)
     lr = cfg.imitation.lr if cfg.method == "il" else cfg.ppo.lr
@@ -122,6 +130,17 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
                       distributed.average_gradients if info.enabled else None)
     expert = OraclePolicy(env.scenes) if cfg.method == "il" else None
     return Run(cfg, info, device, env, model, optimizer, maps, expert)
+
+
+def initialise_from(model: ActorCritic, cfg: TrainConfig, path: str) -> None:
+    """Load a checkpoint's model weights into ``model``; refuse another model config."""
+    payload = load_checkpoint(path)
+    saved = TrainConfig.from_dict(payload["config"]).to_dict()["model"]
+    diffs = differences(saved, cfg.to_dict()["model"], "model.")
+    if diffs:
+        raise CheckpointError(f"--init-from {path}: its model config differs from this "
+                              f"run's ({'; '.join(diffs[:6])}); use the same preset")
+    model.load_state_dict(payload["model"])
 
 
 def sync_point(run: Run) -> None:
@@ -176,7 +195,8 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     seconds = time.perf_counter() - start
     return rollout, {"comm/bytes_per_step": sent / max(acting, 1.0),
                      "comm/rate": talking / max(acting, 1.0),
-                     "perf/collect_seconds": seconds, "imitation/beta": beta}
+                     "perf/collect_seconds": seconds,
+                     **({"imitation/beta": beta} if run.expert is not None else {})}
 
 
 def track_episodes(run: Run, reward: np.ndarray, info: dict[str, Any]) -> None:
