@@ -14,7 +14,7 @@ from collavn.training.distributed import DistInfo
 from collavn.training.imitation import imitation_loss, imitation_update
 from collavn.training.ppo import ppo_loss, ppo_update
 from collavn.training.rollout import compute_gae
-from collavn.training.trainer import build_run, collect_rollout, sync_point
+from collavn.training.trainer import build_run, collect_rollout, scene_window, sync_point
 from training_fixtures import tiny_config
 
 
@@ -139,3 +139,23 @@ def test_dagger_mixing_and_beta_schedule():
     per_env = mixed[:, 0, 0]
     assert np.all(mixed == per_env[:, None, None])  # one choice per env and step
     assert 0.25 < per_env.mean() < 0.35
+
+
+def test_envs_visit_every_training_scene_when_there_are_more_scenes_than_envs():
+    scenes = list("abcde")
+    windows = [scene_window(scenes, 2, k) for k in range(5)]  # type: ignore[arg-type]
+    assert windows[:3] == [["a", "b"], ["c", "d"], ["e", "a"]]
+    assert {s for w in windows for s in w} == set(scenes)
+    assert scene_window(scenes, 8, 3) == scenes  # all fit: no rotation
+
+
+def test_sync_points_move_the_envs_to_the_next_scenes():
+    cfg = tiny_config("no-com", num_envs=1, scenes=("procedural:0", "procedural:1"),
+                      checkpoint_interval=1)
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    seen = []
+    for k in range(3):
+        run.iteration = k
+        sync_point(run)
+        seen.append(run.env.scenes[0].name)
+    assert seen == ["procedural:0", "procedural:1", "procedural:0"]

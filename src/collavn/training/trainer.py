@@ -30,7 +30,7 @@ from collavn.errors import CheckpointError
 from collavn.evaluation.policies import OraclePolicy
 from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
-from collavn.scenes import load_scene
+from collavn.scenes import Scene, load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.training import distributed
 from collavn.training.checkpoint import (
@@ -81,6 +81,7 @@ class Run:
     window: dict[str, deque[float]] = field(default_factory=lambda: {
         k: deque(maxlen=200) for k in ("success", "return", "length")})
     demos: deque[Rollout] = field(default_factory=deque)
+    scenes: list[Scene] = field(default_factory=list)
     started: float = field(default_factory=time.perf_counter)
 
     @property
@@ -117,7 +118,8 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     """Scenes, envs, model (same initial weights on every rank), optimizers."""
     specs = list(cfg.scenes) or scene_specs("train")
     scenes = [load_scene(s) for s in distributed.shard(specs, info)]
-    env = VectorEnv(scenes, cfg.num_envs, env_config(cfg), seed=info.seed(cfg.seed))
+    env = VectorEnv(scene_window(scenes, cfg.num_envs, 0), cfg.num_envs, env_config(cfg),
+                    seed=info.seed(cfg.seed))
     torch.manual_seed(cfg.seed)
     model = ActorCritic(cfg.model, device=device)
     if cfg.init_from:
@@ -129,7 +131,18 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     maps = MapTrainer(model, cfg.mapping, cfg.model.map.use_depth, info.seed(cfg.seed),
                       distributed.average_gradients if info.enabled else None)
     expert = OraclePolicy(env.scenes) if cfg.method == "il" else None
-    return Run(cfg, info, device, env, model, optimizer, maps, expert)
+    return Run(cfg, info, device, env, model, optimizer, maps, expert, scenes=scenes)
+
+
+def scene_window(scenes: list[Scene], num_envs: int, k: int) -> list[Scene]:
+    """The scenes the envs use between the ``k``-th and ``k+1``-th sync point.
+
+    All of them if they fit in ``num_envs`` envs, else ``num_envs`` consecutive ones
+    (cyclically) from ``k · num_envs`` on, so every training scene gets visited.
+    """
+    if len(scenes) <= num_envs:
+        return scenes
+    return [scenes[(k * num_envs + i) % len(scenes)] for i in range(num_envs)]
 
 
 def initialise_from(model: ActorCritic, cfg: TrainConfig, path: str) -> None:
@@ -150,6 +163,12 @@ def sync_point(run: Run) -> None:
     run.generator.manual_seed(seed)
     run.rng = np.random.default_rng(seed)
     run.maps.reseed(seed)
+    if len(run.scenes) > run.cfg.num_envs:  # move the envs on to the next scenes
+        window = scene_window(run.scenes, run.cfg.num_envs,
+                              run.iteration // run.cfg.checkpoint_interval)
+        run.env = VectorEnv(window, run.cfg.num_envs, env_config(run.cfg), seed=seed)
+        if run.expert is not None:
+            run.expert = OraclePolicy(run.env.scenes)
     run.obs, _ = run.env.reset(seed=seed)
     run.state = run.model.initial_state(run.env.num_envs, run.env.num_agents)
     run.returns = np.zeros((run.env.num_envs, run.env.num_agents))
