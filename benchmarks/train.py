@@ -4,6 +4,9 @@ Runs the real trainer pieces (``collect_rollout`` then ``learn``: GAE + PPO epoc
 the imitation step) for a few updates of each preset and prints agent-steps per second.
 The ``paper`` preset (ResNet18 on 512×128) is slow on a CPU: by default it runs with
 fewer envs and a short rollout; the rates are per agent-step, so they compare.
+"collect" is acting in the envs (render + policy forward) without the map updates that
+run between env steps; "map share" is the fraction of the loop spent training the map
+(the paper's 10 updates of batch 64 per env step dominate a CPU run).
 
 Usage: ``python benchmarks/train.py [--presets cpu paper] [--method ours] [--updates 2]
 [--threads 2] [--paper-envs 2] [--paper-rollout 4]``.
@@ -22,12 +25,28 @@ from collavn.training.distributed import DistInfo
 from collavn.training.trainer import build_run, collect_rollout, learn, sync_point
 
 
-def measure(cfg: TrainConfig, updates: int) -> tuple[float, float]:
-    """(collection, whole loop) agent-steps/s over ``updates`` updates after a warm-up."""
+def measure(cfg: TrainConfig, updates: int) -> tuple[float, float, float]:
+    """(collection, whole loop) agent-steps/s and the map-training share of the loop.
+
+    Map updates run inside collection (the paper trains the map every env step); their
+    time is taken out of the collection rate and reported as a share of the loop.
+    """
     run = build_run(cfg, DistInfo(), torch.device(cfg.device))
     sync_point(run)
     rollout, _ = collect_rollout(run)  # warm-up
     learn(run, rollout)
+    map_s = 0.0
+    train_maps = run.maps.train
+
+    def timed_map_train(*args: object, **kwargs: object) -> object:
+        nonlocal map_s
+        t = time.perf_counter()
+        try:
+            return train_maps(*args, **kwargs)
+        finally:
+            map_s += time.perf_counter() - t
+
+    run.maps.train = timed_map_train
     collect_s = total_s = 0.0
     for _ in range(updates):
         t0 = time.perf_counter()
@@ -37,7 +56,7 @@ def measure(cfg: TrainConfig, updates: int) -> tuple[float, float]:
         collect_s += t1 - t0
         total_s += time.perf_counter() - t0
     steps = updates * cfg.ppo.rollout_steps * cfg.num_envs * cfg.agents
-    return steps / collect_s, steps / total_s
+    return steps / (collect_s - map_s), steps / total_s, map_s / total_s
 
 
 def main() -> None:
@@ -55,16 +74,17 @@ def main() -> None:
 
     scenes = tuple(scene_specs("train")[: args.scenes])
     print(f"method {args.method}, {args.threads} torch threads, {args.updates} updates")
-    print(f"{'preset':<8}{'envs':>6}{'agents':>8}{'T':>5}{'collect st/s':>15}{'loop st/s':>12}")
+    print(f"{'preset':<8}{'envs':>6}{'agents':>8}{'T':>5}{'collect st/s':>15}{'loop st/s':>12}"
+          f"{'map share':>11}")
     for preset in args.presets:
         cfg = TrainConfig.preset_config(preset, method=args.method, scenes=scenes,
                                         progress=False, render_threads=args.threads)
         if preset == "paper":
             cfg = replace(cfg, num_envs=args.paper_envs,
                           ppo=replace(cfg.ppo, rollout_steps=args.paper_rollout))
-        collect, loop = measure(cfg.resolved(), args.updates)
+        collect, loop, share = measure(cfg.resolved(), args.updates)
         print(f"{preset:<8}{cfg.num_envs:>6}{cfg.agents:>8}{cfg.ppo.rollout_steps:>5}"
-              f"{collect:>15.1f}{loop:>12.1f}")
+              f"{collect:>15.1f}{loop:>12.1f}{share:>10.0%}")
 
 
 if __name__ == "__main__":
