@@ -122,3 +122,26 @@ def test_init_from_loads_weights_and_refuses_another_model(resumed_and_straight)
                     model=replace(cfg.model, hidden_size=cfg.model.hidden_size * 2))
     with pytest.raises(CheckpointError, match=r"model config differs.*hidden_size"):
         build_run(other, DistInfo(), torch.device("cpu"))
+
+
+def test_stochastic_evaluation_samples_reproducibly_and_leaves_torch_rng_alone(
+        resumed_and_straight):
+    _, root, *_ = resumed_and_straight
+    rng = np.random.default_rng(1)
+    obs = {"panorama": rng.integers(0, 255, (1, 2, 3, 16, 64), dtype=np.uint8),
+           "goal": rng.integers(0, 255, (1, 2, 3, 16, 16), dtype=np.uint8),
+           "pose_delta": np.zeros((1, 2, 3), np.float32),
+           "active": np.ones((1, 2), bool), "step": np.zeros((1, 2), np.int64)}
+    mean_policy, _ = load_policy(root / "straight" / CHECKPOINT)
+    mean, _ = mean_policy.act(obs, mean_policy.initial_state(1, 2))
+    draws = []
+    for _ in range(2):
+        policy, _ = load_policy(root / "straight" / CHECKPOINT, stochastic=True, seed=5)
+        torch.manual_seed(123)
+        a, _ = policy.act(obs, policy.initial_state(1, 2))
+        after = torch.rand(1)
+        torch.manual_seed(123)
+        assert torch.equal(after, torch.rand(1))  # the caller's random state is untouched
+        draws.append(a)
+    np.testing.assert_array_equal(draws[0], draws[1])
+    assert not np.array_equal(draws[0], mean)

@@ -27,7 +27,8 @@ from collavn.scenes.scene import Scene
 
 
 def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0,
-                device: str = "cpu") -> tuple[Policy, dict[str, Any]]:
+                device: str = "cpu", stochastic: bool = False
+                ) -> tuple[Policy, dict[str, Any]]:
     """``random``, ``oracle`` or a checkpoint path → (policy, env overrides it needs)."""
     if name == "random":
         return RandomPolicy(seed), {}
@@ -38,13 +39,13 @@ def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0,
         raise CollavnError(f"unknown policy {name!r}: use random, oracle or a checkpoint file")
     from collavn.training.checkpoint import load_policy
 
-    return load_policy(path, device=device)
+    return load_policy(path, device=device, stochastic=stochastic, seed=seed)
 
 
 def run_evaluation(policy_name: str, dataset: Dataset, base: EnvConfig, num_envs: int = 4,
                    seed: int = 0, keep_trajectories: int = 6, progress: bool = True,
                    device: str = "cpu", difficulty: str | None = None,
-                   ) -> tuple[list[AgentRecord], list[Trajectory]]:
+                   stochastic: bool = False) -> tuple[list[AgentRecord], list[Trajectory]]:
     """Evaluate one policy on every file of ``dataset``; records in file order.
 
     ``difficulty`` keeps only the episodes of that bin (``easy``, ``medium``, ``hard``).
@@ -60,7 +61,7 @@ def run_evaluation(policy_name: str, dataset: Dataset, base: EnvConfig, num_envs
         for content in dataset.files.values():
             scene = load_scene(content.scene.source)
             content.check_scene(scene)
-            policy, overrides = make_policy(policy_name, [scene], seed, device)
+            policy, overrides = make_policy(policy_name, [scene], seed, device, stochastic)
             config = replace(base, task=content.task, num_agents=content.num_agents,
                              **overrides)
             episodes = [e for e in content.episodes
@@ -102,6 +103,9 @@ class Evaluate:
     """Seeds the random policy and odometry noise."""
     device: str = "cpu"
     """Torch device for checkpoint policies."""
+    stochastic: bool = False
+    """Checkpoints only: sample actions from the policy's Gaussian (seeded by ``--seed``)
+    instead of taking its mean."""
     json: bool = False
     """Print the metrics as JSON instead of a table."""
 
@@ -115,7 +119,8 @@ class Evaluate:
                          panorama_height=self.panorama_height, goal_size=self.goal_size)
         records, trajectories = run_evaluation(self.policy, dataset, base, self.num_envs,
                                                self.seed, device=self.device,
-                                               difficulty=self.difficulty)
+                                               difficulty=self.difficulty,
+                                               stochastic=self.stochastic)
         if not records:
             raise CollavnError(f"no {self.difficulty} episodes in {self.dataset}")
         table = write_results(self.out, {self.policy: records}, trajectories)

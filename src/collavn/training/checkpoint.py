@@ -89,13 +89,16 @@ class CheckpointPolicy:
     """A trained :class:`ActorCritic` behind the evaluation ``Policy`` interface.
 
     Numpy observations go to torch on the model's device; ``episode_start`` comes from
-    ``obs["step"] == 0``; actions are the policy mean clipped to [-1, 1]. Works for any
-    number of agents (Ad-hoCoop; ``il`` copies).
+    ``obs["step"] == 0``; actions are the policy mean clipped to [-1, 1], or with
+    ``stochastic`` samples of the Gaussian (from a generator seeded by ``seed``). Works
+    for any number of agents (Ad-hoCoop; ``il`` copies).
     """
 
-    def __init__(self, model: ActorCritic) -> None:
+    def __init__(self, model: ActorCritic, stochastic: bool = False, seed: int = 0) -> None:
         self.model = model.eval()
         self.keys = policy_keys(model.cfg.map.use_depth)
+        self.stochastic = stochastic
+        self.seed = seed
 
     def initial_state(self, num_envs: int, num_agents: int) -> AgentState:
         """Zero recurrent state."""
@@ -105,13 +108,19 @@ class CheckpointPolicy:
             ) -> tuple[np.ndarray, AgentState]:
         """Deterministic actions ``(E, N, 2)`` and the next state."""
         device = self.model.device
-        out = self.model.act(obs_to_torch(obs, self.keys, device), state,
-                             episode_start(obs, device), deterministic=True)
+        # Sampling draws from torch's global generator: reseed it per call (reproducible
+        # per seed) inside fork_rng, so the caller's random state is left as it was.
+        with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
+            torch.manual_seed(self.seed)
+            self.seed += 1
+            out = self.model.act(obs_to_torch(obs, self.keys, device), state,
+                                 episode_start(obs, device),
+                                 deterministic=not self.stochastic)
         return out.action.cpu().numpy().astype(np.float64), out.state
 
 
-def load_policy(path: str | Path, device: str = "cpu"
-                ) -> tuple[CheckpointPolicy, dict[str, Any]]:
+def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
+                seed: int = 0) -> tuple[CheckpointPolicy, dict[str, Any]]:
     """A checkpoint as an evaluation policy, plus the env settings it needs.
 
     Returns:
@@ -126,4 +135,4 @@ def load_policy(path: str | Path, device: str = "cpu"
                                  "goal_size": config.goal_size}
     if config.model.map.use_depth:
         overrides["depth"] = True
-    return CheckpointPolicy(model), overrides
+    return CheckpointPolicy(model, stochastic, seed), overrides
