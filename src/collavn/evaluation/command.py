@@ -55,19 +55,19 @@ def run_evaluation(policy_name: str, dataset: Dataset, base: EnvConfig, num_envs
     records: list[AgentRecord] = []
     trajectories: list[Trajectory] = []
     with Progress(disable=not progress, transient=True) as bar:
-        total = sum(difficulty in (None, e.difficulty)
-                    for c in dataset.files.values() for e in c.episodes)
-        task = bar.add_task(f"{policy_name}", total=total)
-        for content in dataset.files.values():
+        selected = {name: [e for e in content.episodes
+                           if difficulty in (None, e.difficulty)]
+                    for name, content in dataset.files.items()}
+        task = bar.add_task(f"{policy_name}", total=sum(map(len, selected.values())))
+        for name, content in dataset.files.items():
+            episodes = selected[name]
+            if not episodes:
+                continue
             scene = load_scene(content.scene.source)
             content.check_scene(scene)
             policy, overrides = make_policy(policy_name, [scene], seed, device, stochastic)
             config = replace(base, task=content.task, num_agents=content.num_agents,
                              **overrides)
-            episodes = [e for e in content.episodes
-                        if difficulty is None or e.difficulty == difficulty]
-            if not episodes:
-                continue
             result = evaluate(policy, scene, episodes, config, num_envs, seed,
                               keep_trajectories, on_episode=lambda k: bar.advance(task, k))
             records += result.records

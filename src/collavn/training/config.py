@@ -36,7 +36,8 @@ RUN_CONTROL_FIELDS = ("out", "total_steps", "time_budget_minutes", "progress", "
 CPU_DEVIATIONS: dict[str, str] = {
     "model": "small CNN, 256-d embeddings, 3×32×128 panoramas, 32×32 goals, 96×96 map at "
              "20 cm (ModelConfig.cpu) — ResNet18 at 512×128 runs ~30 images/s on 2 cores",
-    "num_envs": "8 envs (not 25), one scene each, to fit 2 cores",
+    "num_envs": "8 envs (not 25) to fit 2 cores; they move on to the next 8 training "
+                "scenes at every checkpoint sync point",
     "lr": "1e-3 (not 1e-5): 1e-5 (and 3e-4: approx-KL < 5e-4 per update) moves the "
           "policy too little in the ~1e5 agent-steps an hour gives",
     "update_epochs": "4 epochs × 2 mini-batches (not 8 × 5): the update dominates CPU time",

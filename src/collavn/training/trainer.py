@@ -163,9 +163,9 @@ def sync_point(run: Run) -> None:
     run.generator.manual_seed(seed)
     run.rng = np.random.default_rng(seed)
     run.maps.reseed(seed)
-    if len(run.scenes) > run.cfg.num_envs:  # move the envs on to the next scenes
-        window = scene_window(run.scenes, run.cfg.num_envs,
-                              run.iteration // run.cfg.checkpoint_interval)
+    window = scene_window(run.scenes, run.cfg.num_envs,
+                          run.iteration // run.cfg.checkpoint_interval)
+    if [s.name for s in window] != [s.name for s in run.env.scenes]:  # next scenes
         run.env = VectorEnv(window, run.cfg.num_envs, env_config(run.cfg), seed=seed)
         if run.expert is not None:
             run.expert = OraclePolicy(run.env.scenes)
