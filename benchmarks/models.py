@@ -44,8 +44,9 @@ def report(name: str, cfg: ModelConfig, e: int, n: int, repeats: int) -> None:
     tower = model.towers[0]
     parts = {"panorama enc": tower.panorama_encoder, "goal enc": tower.goal_encoder,
              "map builder": tower.map_builder, "map enc": tower.map_encoder,
-             "comm": tower.comm, "cores+heads": [tower.actor_core, tower.critic_core,
-                                                 tower.actor_mean, tower.critic_value]}
+             "goal matching": tower.goal_matcher, "comm": tower.comm,
+             "cores+heads": [tower.actor_core, tower.critic_core, tower.actor_mean,
+                             tower.critic_value]}
     sizes = []
     for label, mod in parts.items():
         mods = mod if isinstance(mod, list) else [mod]

@@ -161,3 +161,21 @@ def test_paper_size_shapes():
     assert out.state.features.shape == (1, 2, 256, 13, 13)
     assert out.map_logits.shape == (1, 2, 2, 64, 64)
     assert out.message.omega.shape == (1, 2, 2048) and out.value.shape == (1, 2)
+
+
+def test_odometry_input_reaches_the_actor_but_not_at_an_episode_start():
+    torch.manual_seed(0)
+    model = ActorCritic(tiny("none", odometry_input=True))
+    plain = ActorCritic(tiny("none", odometry_input=False))
+    assert model.towers[0].actor_core.input_size == plain.towers[0].actor_core.input_size + 3
+    obs = observations(1, 2, 3)
+    delta = torch.tensor([[0.7, 0.0, 0.2], [0.0, 0.0, 0.0]])
+    state = model.initial_state(1, 2)
+    tower = model.towers[0]
+    for first in (False, True):
+        s = tower.perceive(obs["panorama"][0], obs["goal"][0], None, delta, state.grid[0],
+                           state.features[0], state.pose[0], torch.full((2,), first))[2]
+        torch.testing.assert_close(s[:, -3:], torch.zeros_like(delta) if first else delta)
+    start = torch.zeros(1, 2, dtype=torch.bool)
+    out = model(dict(obs, pose_delta=delta[None]), state, start)
+    assert torch.isfinite(out.dist.mean).all()

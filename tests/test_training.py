@@ -12,7 +12,7 @@ from collavn.training.command import Train
 from collavn.training.config import TrainConfig
 from collavn.training.distributed import DistInfo
 from collavn.training.imitation import imitation_loss, imitation_update
-from collavn.training.ppo import ppo_loss, ppo_update
+from collavn.training.ppo import critic_parameters, ppo_loss, ppo_update
 from collavn.training.rollout import compute_gae
 from collavn.training.trainer import build_run, collect_rollout, scene_window, sync_point
 from training_fixtures import tiny_config
@@ -99,6 +99,34 @@ def test_ppo_loss_goes_down_on_a_fixed_batch():
     after, stats = ppo_loss(run.model, rollout, adv, ret, ppo)
     assert float(after.detach()) < float(before.detach()) - 1e-3
     assert np.isfinite(stats["approx_kl"])
+
+
+def test_critic_warmup_moves_only_the_critic_and_lowers_the_value_loss():
+    cfg, run, rollout = _fixed_batch("no-com")
+    adv, ret = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
+                           rollout.truncated, rollout.last_value, 0.99, 0.95)
+    ppo = dataclasses.replace(cfg.ppo, update_epochs=10, num_minibatches=1)
+    for group in run.optimizer.param_groups:
+        group["lr"] = 1e-3
+    critic = {id(p) for p in critic_parameters(run.model)}
+    before = {n: p.detach().clone() for n, p in run.model.named_parameters()}
+    _, first = ppo_loss(run.model, rollout, adv, ret, ppo)
+    ppo_update(run.model, run.optimizer, rollout, adv, ret, ppo, run.generator,
+               critic_only=True)
+    _, last = ppo_loss(run.model, rollout, adv, ret, ppo)
+    assert last["value_loss"] < first["value_loss"]
+    for name, p in run.model.named_parameters():
+        if id(p) not in critic:
+            assert torch.equal(p.detach(), before[name]), f"{name} moved during warm-up"
+    assert any(not torch.equal(p.detach(), before[n]) for n, p in
+               run.model.named_parameters() if id(p) in critic)
+    # the switch in the trainer: warm-up for the first `critic_warmup` updates only
+    run.cfg = dataclasses.replace(run.cfg, ppo=dataclasses.replace(run.cfg.ppo,
+                                                                    critic_warmup=1))
+    from collavn.training.trainer import learn
+    assert learn(run, rollout)["loss/critic_warmup"] == 1.0
+    run.iteration = 1
+    assert learn(run, rollout)["loss/critic_warmup"] == 0.0
 
 
 def test_imitation_loss_goes_down_on_a_fixed_batch():

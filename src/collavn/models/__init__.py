@@ -5,7 +5,7 @@ The models depend only on the observation contract of the envs (see
 """
 
 from collavn.models.communication import CommProjections, Message, match_and_select
-from collavn.models.config import CommConfig, MapConfig, ModelConfig
+from collavn.models.config import CommConfig, MapConfig, MatchConfig, ModelConfig
 from collavn.models.encoders import (
     ResNet18Encoder,
     SmallCNNEncoder,
@@ -13,12 +13,14 @@ from collavn.models.encoders import (
     make_encoder,
 )
 from collavn.models.mapping import MapBuilder, MapEncoder, map_loss
+from collavn.models.matching import GoalMatcher
 from collavn.models.policy import ActorCritic, ActOutput, EvaluateOutput, PolicyStep
 from collavn.models.state import AgentState
 
 __all__ = [
     "ActOutput", "ActorCritic", "AgentState", "CommConfig", "CommProjections",
-    "EvaluateOutput", "MapBuilder", "MapConfig", "MapEncoder", "Message", "ModelConfig",
+    "EvaluateOutput", "GoalMatcher", "MapBuilder", "MapConfig", "MapEncoder", "MatchConfig",
+    "Message", "ModelConfig",
     "PolicyStep", "ResNet18Encoder", "SmallCNNEncoder", "load_imagenet_weights",
     "make_encoder", "map_loss", "match_and_select",
 ]

@@ -100,6 +100,29 @@ class CommConfig:
 
 
 @dataclass(frozen=True)
+class MatchConfig:
+    """Goal matching (:class:`collavn.models.matching.GoalMatcher`; not in the paper).
+
+    Attributes:
+        enabled: Add the goal-matching vector to the goal embedding.
+        channels: Feature channels compared (the last 3 are the pooled RGB).
+        scales: Sizes of the goal template relative to the goal image (1 = same angular
+            size; smaller = its content seen from farther away).
+        output_size: Size of the match vector.
+    """
+
+    enabled: bool = False
+    channels: int = 32
+    scales: tuple[float, ...] = (1.0, 0.5, 0.25)
+    output_size: int = 64
+
+    def __post_init__(self) -> None:
+        if self.enabled and (self.channels <= 3 or not self.scales
+                             or min(self.scales) <= 0):
+            raise ValueError("goal matching needs channels > 3 and positive scales")
+
+
+@dataclass(frozen=True)
 class ModelConfig:
     """The whole agent: encoders → map → communication → GRU core → actor / critic.
 
@@ -115,11 +138,15 @@ class ModelConfig:
         critic_hidden_size: Hidden size of the critic GRU.
         critic_full_input: The critic also sees the map vector and the goal embedding
             (the paper's V sees only (O, ω)).
+        odometry_input: Append the last step's ``pose_delta`` to the map vector, so the
+            policy sees directly whether its last action moved it (a blocked robot
+            does not move; not in the paper).
         log_std_init: Initial log standard deviation of the Gaussian policy.
         per_agent_params: One set of weights per agent slot instead of shared weights.
         max_agents: Number of agent slots when ``per_agent_params`` (ignored otherwise).
         map: The map module.
         comm: The communication module.
+        goal_match: Goal matching (off in the paper's model, on in ``cpu``).
     """
 
     encoder: EncoderKind = "resnet18"
@@ -130,11 +157,13 @@ class ModelConfig:
     hidden_size: int = 512
     critic_hidden_size: int = 512
     critic_full_input: bool = False
+    odometry_input: bool = False
     log_std_init: float = -0.5
     per_agent_params: bool = False
     max_agents: int = 4
     map: MapConfig = field(default_factory=MapConfig)
     comm: CommConfig = field(default_factory=CommConfig)
+    goal_match: MatchConfig = field(default_factory=MatchConfig)
 
     @classmethod
     def paper(cls, **overrides: object) -> ModelConfig:
@@ -143,13 +172,18 @@ class ModelConfig:
 
     @classmethod
     def cpu(cls, **overrides: object) -> ModelConfig:
-        """Laptop-CPU sizes: small CNN, 3×32×128 panoramas, 96×96 map at 20 cm."""
+        """Laptop-CPU sizes (small CNN, 3×32×128 panoramas, 96×96 map at 20 cm).
+
+        Also on: goal matching, odometry input, a critic that sees the goal and the map.
+        """
         base: dict[str, object] = dict(
             encoder="small", embed_dim=256, panorama_shape=(3, 32, 128),
             goal_shape=(3, 32, 32), hidden_size=256, critic_hidden_size=128,
             map=MapConfig(size=96, resolution=0.2, local_size=32, feature_channels=32,
                           feature_size=6, hidden=256, encoder_size=32, embed_dim=128),
             comm=CommConfig(query_dim=64, key_dim=64, value_dim=256),
+            goal_match=MatchConfig(enabled=True), critic_full_input=True,
+            odometry_input=True,
         )
         base.update(overrides)
         return cls(**base)  # type: ignore[arg-type]

@@ -42,6 +42,7 @@ from collavn.models.communication import (
 from collavn.models.config import ModelConfig
 from collavn.models.encoders import make_encoder
 from collavn.models.mapping import MapBuilder, MapEncoder
+from collavn.models.matching import GoalMatcher
 from collavn.models.state import AgentState
 
 ACTION_DIM = 2
@@ -52,18 +53,23 @@ class AgentTower(nn.Module):
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
-        emb, map_dim = cfg.embed_dim, cfg.map.embed_dim
+        emb = cfg.embed_dim
+        map_dim = cfg.map.embed_dim + (3 if cfg.odometry_input else 0)
+        self.odometry_input = cfg.odometry_input
         self.panorama_encoder = make_encoder(cfg.encoder, cfg.panorama_shape, emb,
                                              cfg.weights_path)
         self.goal_encoder = make_encoder(cfg.encoder, cfg.goal_shape, emb, cfg.weights_path)
+        self.goal_matcher = (GoalMatcher(cfg.goal_match, cfg.panorama_shape, cfg.goal_shape)
+                             if cfg.goal_match.enabled else None)
+        goal = emb + (0 if self.goal_matcher is None else self.goal_matcher.output_size)
         self.map_builder = MapBuilder(cfg.map, cfg.panorama_shape)
         self.map_encoder = MapEncoder(cfg.map)
         self.comm = (None if cfg.comm.variant == "none"
                      else CommProjections(cfg.comm, emb + map_dim))
         msg = 0 if self.comm is None else self.comm.output_size
-        critic_in = emb + msg + (map_dim + emb if cfg.critic_full_input else 0)
+        critic_in = emb + msg + (map_dim + goal if cfg.critic_full_input else 0)
         self.critic_full_input = cfg.critic_full_input
-        self.actor_core = nn.GRUCell(2 * emb + map_dim + msg, cfg.hidden_size)
+        self.actor_core = nn.GRUCell(emb + goal + map_dim + msg, cfg.hidden_size)
         self.critic_core = nn.GRUCell(critic_in, cfg.critic_hidden_size)
         self.actor_mean = nn.Linear(cfg.hidden_size, ACTION_DIM)
         nn.init.orthogonal_(self.actor_mean.weight, gain=0.01)
@@ -77,14 +83,18 @@ class AgentTower(nn.Module):
         """Encode one step for ``B`` agents.
 
         Returns:
-            o ``(B, embed)``, g ``(B, embed)``, map vector ``(B, map_embed)``, and the
-            map step: grid ``(B, 4, S, S)``, features ``(B, F, G, G)``, pose ``(B, 3)``,
-            local logits ``(B, 2, m, m)``.
+            o ``(B, embed)``, g ``(B, embed [+ match])``, map vector ``(B, map_embed
+            [+ 3 odometry])``, and the map step: grid ``(B, 4, S, S)``, features
+            ``(B, F, G, G)``, pose ``(B, 3)``, local logits ``(B, 2, m, m)``.
         """
         o = self.panorama_encoder(panorama)
         g = self.goal_encoder(goal)
+        if self.goal_matcher is not None:
+            g = torch.cat([g, self.goal_matcher(panorama, goal)], dim=1)
         step = self.map_builder(panorama, depth, pose_delta, grid, features, pose, first)
         s = self.map_encoder(step.grid, step.features, step.pose)
+        if self.odometry_input:  # last step's motion, zero at an episode's first step
+            s = torch.cat([s, pose_delta * (~first).to(pose_delta.dtype)[:, None]], dim=1)
         return o, g, s, step.grid, step.features, step.pose, step.logits
 
     def heads(self, o: Tensor, g: Tensor, s: Tensor, omega: Tensor, actor_h: Tensor,

@@ -53,6 +53,8 @@ class Train:
     """PPO epochs per rollout."""
     num_minibatches: int | None = None
     """PPO mini-batches per epoch."""
+    critic_warmup: int | None = None
+    """PPO: the first this-many updates train only the critic (use with --init-from)."""
     panorama_width: int | None = None
     """Panorama width."""
     panorama_height: int | None = None
@@ -88,7 +90,7 @@ class Train:
                 top[name] = getattr(self, name)
         cfg = TrainConfig.preset_config(self.preset, **top)
         ppo = {k: getattr(self, k) for k in ("rollout_steps", "update_epochs",
-                                              "num_minibatches")
+                                              "num_minibatches", "critic_warmup")
                if getattr(self, k) is not None}
         if self.lr is not None and self.method != "il":
             ppo["lr"] = self.lr

@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
 from collavn.errors import CollavnError
-from collavn.models.config import CommConfig, MapConfig, ModelConfig
+from collavn.models.config import CommConfig, MapConfig, MatchConfig, ModelConfig
 
 Method = Literal["ours", "no-mem", "no-com", "il"]
 Preset = Literal["paper", "cpu"]
@@ -36,6 +36,13 @@ RUN_CONTROL_FIELDS = ("out", "total_steps", "time_budget_minutes", "progress", "
 CPU_DEVIATIONS: dict[str, str] = {
     "model": "small CNN, 256-d embeddings, 3×32×128 panoramas, 32×32 goals, 96×96 map at "
              "20 cm (ModelConfig.cpu) — ResNet18 at 512×128 runs ~30 images/s on 2 cores",
+    "goal_match": "goal matching on (collavn.models.matching): the goal image is compared "
+                  "with the panorama at every azimuth and 3 scales, instead of leaving a "
+                  "GRU to learn the comparison from two pooled embeddings",
+    "odometry": "the last step's pose change is a direct policy input (odometry_input), "
+                "so a robot pushing against a wall can tell that it is not moving",
+    "critic": "the critic also sees the map and goal vectors (critic_full_input); the "
+              "paper's V sees only (O, ω), which cannot tell how far the goal is",
     "num_envs": "8 envs (not 25) to fit 2 cores; they move on to the next 8 training "
                 "scenes at every checkpoint sync point",
     "lr": "1e-3 (not 1e-5): 1e-5 (and 3e-4: approx-KL < 5e-4 per update) moves the "
@@ -74,6 +81,10 @@ class PPOConfig:
     """Global gradient-norm clip."""
     norm_adv: bool = True
     """Normalise advantages per mini-batch."""
+    critic_warmup: int = 0
+    """The first this-many updates of a run train only the critic (its GRU and value
+    head; the policy, encoders and log-std stay fixed) — for fine-tuning a policy from
+    ``--init-from``, whose critic is untrained, without letting noise move it."""
 
 
 @dataclass(frozen=True)
@@ -231,6 +242,11 @@ def model_config_from_dict(d: dict[str, Any]) -> ModelConfig:
     d = dict(d)
     d["map"] = MapConfig(**d["map"])
     d["comm"] = CommConfig(**d["comm"])
+    # runs saved before goal matching existed had none
+    match = dict(d.get("goal_match", {"enabled": False}))
+    if "scales" in match:
+        match["scales"] = tuple(match["scales"])
+    d["goal_match"] = MatchConfig(**match)
     for name in ("panorama_shape", "goal_shape"):
         d[name] = tuple(d[name])
     known = {f.name for f in dataclasses.fields(ModelConfig)}

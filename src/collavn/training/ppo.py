@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from collavn.models.policy import ActorCritic
+from collavn.models.policy import ActorCritic, AgentTower
 from collavn.training.config import PPOConfig
 from collavn.training.rollout import Rollout
 
@@ -48,8 +48,11 @@ def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
 
 
 def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Tensor,
-             cfg: PPOConfig) -> tuple[Tensor, dict[str, float]]:
-    """The PPO loss of one mini-batch of sequences ``(T, E_b, N)`` and its statistics."""
+             cfg: PPOConfig, critic_only: bool = False) -> tuple[Tensor, dict[str, float]]:
+    """The PPO loss of one mini-batch of sequences ``(T, E_b, N)`` and its statistics.
+
+    ``critic_only``: the optimised loss is the value term alone (statistics as usual).
+    """
     out = model.evaluate_actions(batch.obs, batch.initial_state, batch.episode_start,
                                  batch.raw_actions)
     mask = batch.active
@@ -65,7 +68,8 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
     policy_loss = masked_mean(surrogate, mask)
     value_loss = 0.5 * masked_mean((out.value - returns) ** 2, mask)
     entropy = masked_mean(out.entropy, mask)
-    loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
+    loss = (cfg.vf_coef * value_loss if critic_only
+            else policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy)
     with torch.no_grad():
         parts = {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy,
                  "loss": loss, "approx_kl": masked_mean((ratio - 1) - log_ratio, mask),
@@ -73,6 +77,15 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
                                               mask)}
         stats = {k: float(v.detach()) for k, v in parts.items()}
     return loss, stats
+
+
+def critic_parameters(model: ActorCritic) -> list[torch.nn.Parameter]:
+    """The parameters only the critic uses: its GRU core and value head, every tower."""
+    params: list[torch.nn.Parameter] = []
+    for tower in model.towers:
+        assert isinstance(tower, AgentTower)
+        params += [*tower.critic_core.parameters(), *tower.critic_value.parameters()]
+    return params
 
 
 def minibatch_envs(num_envs: int, num_minibatches: int,
@@ -85,7 +98,8 @@ def minibatch_envs(num_envs: int, num_minibatches: int,
 
 def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Rollout,
                advantages: Tensor, returns: Tensor, cfg: PPOConfig, generator: torch.Generator,
-               sync_gradients: Callable[[], None] | None = None) -> PPOStats:
+               sync_gradients: Callable[[], None] | None = None,
+               critic_only: bool = False) -> PPOStats:
     """``update_epochs`` passes of ``num_minibatches`` gradient steps over one rollout.
 
     Args:
@@ -98,18 +112,26 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Ro
         generator: Shuffles the mini-batches (seeded: runs are reproducible).
         sync_gradients: Called between ``backward`` and the optimizer step (distributed
             runs average gradients over processes here).
+        critic_only: Optimise the value loss and step only the critic's own parameters
+            (:func:`critic_parameters`); everything else keeps its weights and its
+            optimizer state.
     """
     params = [p for group in optimizer.param_groups for p in group["params"]]
+    critic = {id(p) for p in critic_parameters(model)}
     totals: dict[str, float] = {}
     count = 0
     for _ in range(cfg.update_epochs):
         for index in minibatch_envs(rollout.rewards.shape[1], cfg.num_minibatches, generator):
             loss, stats = ppo_loss(model, rollout.select_envs(index), advantages[:, index],
-                                   returns[:, index], cfg)
+                                   returns[:, index], cfg, critic_only)
             optimizer.zero_grad(set_to_none=False)
             loss.backward()
             if sync_gradients is not None:
                 sync_gradients()
+            if critic_only:  # Adam skips parameters without a gradient
+                for p in params:
+                    if id(p) not in critic:
+                        p.grad = None
             torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
             optimizer.step()
             for k, v in stats.items():

@@ -242,9 +242,11 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
     advantages, returns = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
                                       rollout.truncated, rollout.last_value, cfg.ppo.gamma,
                                       cfg.ppo.gae_lambda)
+    warmup = run.iteration < cfg.ppo.critic_warmup
     stats = ppo_update(run.model, run.optimizer, rollout, advantages, returns, cfg.ppo,
-                       run.generator, sync)
-    return {f"loss/{k}": v for k, v in stats.__dict__.items()}
+                       run.generator, sync, critic_only=warmup)
+    return {f"loss/{k}": v for k, v in stats.__dict__.items()} | {
+        "loss/critic_warmup": float(warmup)}
 
 
 def summary(run: Run, collect: dict[str, float], losses: dict[str, float],
