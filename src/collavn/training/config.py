@@ -83,8 +83,9 @@ class PPOConfig:
     """Normalise advantages per mini-batch."""
     critic_warmup: int = 0
     """The first this-many updates of a run train only the critic (its GRU and value
-    head; the policy, encoders and log-std stay fixed) — for fine-tuning a policy from
-    ``--init-from``, whose critic is untrained, without letting noise move it."""
+    head; the policy, encoders and log-std stay fixed, the map module keeps its own
+    supervised training) — for fine-tuning a policy from ``--init-from``, whose critic
+    is untrained, without letting its noise move the policy."""
 
 
 @dataclass(frozen=True)
