@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from collavn.errors import CollavnError
 from collavn.training.command import Train
 from collavn.training.config import TrainConfig
 from collavn.training.distributed import DistInfo
@@ -127,6 +128,8 @@ def test_critic_warmup_moves_only_the_critic_and_lowers_the_value_loss():
     assert learn(run, rollout)["loss/critic_warmup"] == 1.0
     run.iteration = 1
     assert learn(run, rollout)["loss/critic_warmup"] == 0.0
+    with pytest.raises(CollavnError, match="critic_warmup must be ≥ 0, got -1"):
+        Train(method="no-com", preset="cpu", critic_warmup=-1, out="x").config()
 
 
 def test_imitation_loss_goes_down_on_a_fixed_batch():

@@ -117,9 +117,10 @@ class MatchConfig:
     output_size: int = 64
 
     def __post_init__(self) -> None:
-        if self.enabled and (self.channels <= 3 or not self.scales
-                             or min(self.scales) <= 0):
-            raise ValueError("goal matching needs channels > 3 and positive scales")
+        if self.channels <= 3 or not self.scales or min(self.scales) <= 0:
+            raise ValueError("goal matching needs channels > 3 (3 are the pooled RGB) and "
+                             f"positive scales, got channels={self.channels}, "
+                             f"scales={self.scales}")
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,6 @@ class GoalMatcher(nn.Module):
     def __init__(self, cfg: MatchConfig, panorama_shape: tuple[int, int, int],
                  goal_shape: tuple[int, int, int]) -> None:
         super().__init__()
-        self.cfg = cfg
         _, ph, pw = panorama_shape
         _, gh, gw = goal_shape
         for name, (h, w) in (("panorama", (ph, pw)), ("goal", (gh, gw))):
@@ -46,9 +45,7 @@ class GoalMatcher(nn.Module):
                                  f"for goal matching, got {h}×{w}")
         self.grid_h, self.grid_w = ph // STRIDE, pw // STRIDE
         self.goal_hw = (gh // STRIDE, gw // STRIDE)
-        learned = cfg.channels - 3
-        if learned < 1:
-            raise ValueError("MatchConfig.channels must be > 3 (3 are the pooled RGB)")
+        learned = cfg.channels - 3  # MatchConfig ensures ≥ 1
         self.trunk = nn.Sequential(
             nn.Conv2d(3, learned, 5, 2, 2), nn.ReLU(inplace=True),
             nn.Conv2d(learned, learned, 3, 2, 1))
@@ -69,11 +66,12 @@ class GoalMatcher(nn.Module):
         features of the first and last columns see their true neighbours.
         """
         x = normalise_rgb(images[:, :3])
-        if wrap:
-            pad = 2 * STRIDE
-            x = torch.cat([x[..., -pad:], x, x[..., :pad]], dim=-1)
+        if not wrap:
+            return torch.cat([self.trunk(x), F.avg_pool2d(x, STRIDE)], dim=1)
+        pad = 2 * STRIDE  # ≥ the trunk's reach; a whole number of feature columns
+        x = torch.cat([x[..., -pad:], x, x[..., :pad]], dim=-1)
         feats = torch.cat([self.trunk(x), F.avg_pool2d(x, STRIDE)], dim=1)
-        return feats[..., 2:-2] if wrap else feats
+        return feats[..., pad // STRIDE:-(pad // STRIDE)]
 
     def profile(self, panorama: Tensor, goal: Tensor) -> Tensor:
         """Cosine similarities ``(B, len(scales), W/4)``; column ``W/8`` is straight ahead.

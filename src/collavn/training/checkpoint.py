@@ -106,16 +106,18 @@ class CheckpointPolicy:
 
     def act(self, obs: dict[str, np.ndarray], state: AgentState
             ) -> tuple[np.ndarray, AgentState]:
-        """Deterministic actions ``(E, N, 2)`` and the next state."""
+        """Actions ``(E, N, 2)`` (the mean, or a sample if ``stochastic``), next state."""
         device = self.model.device
+        inputs = obs_to_torch(obs, self.keys, device), state, episode_start(obs, device)
+        if not self.stochastic:
+            out = self.model.act(*inputs, deterministic=True)
+            return out.action.cpu().numpy().astype(np.float64), out.state
         # Sampling draws from torch's global generator: reseed it per call (reproducible
         # per seed) inside fork_rng, so the caller's random state is left as it was.
         with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
             torch.manual_seed(self.seed)
             self.seed += 1
-            out = self.model.act(obs_to_torch(obs, self.keys, device), state,
-                                 episode_start(obs, device),
-                                 deterministic=not self.stochastic)
+            out = self.model.act(*inputs)
         return out.action.cpu().numpy().astype(np.float64), out.state
 
 

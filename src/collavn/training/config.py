@@ -189,6 +189,8 @@ class TrainConfig:
                                f"{', '.join(METHOD_COMM)}")
         if self.num_envs < 1 or self.agents < 1 or self.ppo.rollout_steps < 1:
             raise CollavnError("num_envs, agents and rollout_steps must be ≥ 1")
+        if self.ppo.critic_warmup < 0:
+            raise CollavnError(f"critic_warmup must be ≥ 0, got {self.ppo.critic_warmup}")
 
     @classmethod
     def preset_config(cls, name: str, **overrides: Any) -> TrainConfig:
@@ -243,8 +245,7 @@ def model_config_from_dict(d: dict[str, Any]) -> ModelConfig:
     d = dict(d)
     d["map"] = MapConfig(**d["map"])
     d["comm"] = CommConfig(**d["comm"])
-    # runs saved before goal matching existed had none
-    match = dict(d.get("goal_match", {"enabled": False}))
+    match = dict(d.get("goal_match", {}))  # absent in runs saved before it existed: off
     if "scales" in match:
         match["scales"] = tuple(match["scales"])
     d["goal_match"] = MatchConfig(**match)
