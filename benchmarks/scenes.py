@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from collavn.scenes import load_scene
-from collavn.scenes.command import largest_geodesic
+from collavn.scenes.summary import largest_geodesic
 
 HOUSE = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "aws_small_house.glb"
 

@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import torch
 
-from collavn.training.config import TrainConfig
+from collavn.training.config import TrainConfig, preset_config
 from collavn.training.distributed import DistInfo
 from collavn.training.trainer import build_run, collect_rollout, learn, sync_point
 
@@ -31,7 +31,7 @@ def measure(cfg: TrainConfig, updates: int) -> tuple[float, float, float]:
     Map updates run inside collection (the paper trains the map every env step); their
     time is taken out of the collection rate and reported as a share of the loop.
     """
-    run = build_run(cfg, DistInfo(), torch.device(cfg.device))
+    run = build_run(cfg, DistInfo(), torch.device(cfg.run.device))
     sync_point(run)
     rollout, _ = collect_rollout(run)  # warm-up
     learn(run, rollout)
@@ -55,7 +55,7 @@ def measure(cfg: TrainConfig, updates: int) -> tuple[float, float, float]:
         learn(run, rollout)
         collect_s += t1 - t0
         total_s += time.perf_counter() - t0
-    steps = updates * cfg.ppo.rollout_steps * cfg.num_envs * cfg.agents
+    steps = updates * cfg.ppo.rollout_steps * cfg.run.num_envs * cfg.env.num_agents
     return steps / (collect_s - map_s), steps / total_s, map_s / total_s
 
 
@@ -77,13 +77,14 @@ def main() -> None:
     print(f"{'preset':<8}{'envs':>6}{'agents':>8}{'T':>5}{'collect st/s':>15}{'loop st/s':>12}"
           f"{'map share':>11}")
     for preset in args.presets:
-        cfg = TrainConfig.preset_config(preset, method=args.method, scenes=scenes,
-                                        progress=False, render_threads=args.threads)
+        cfg = preset_config(preset, method=args.method).with_run(scenes=scenes, progress=False)
+        cfg = cfg.with_env(render_threads=args.threads)
         if preset == "paper":
-            cfg = replace(cfg, num_envs=args.paper_envs,
-                          ppo=replace(cfg.ppo, rollout_steps=args.paper_rollout))
-        collect, loop, share = measure(cfg.resolved(), args.updates)
-        print(f"{preset:<8}{cfg.num_envs:>6}{cfg.agents:>8}{cfg.ppo.rollout_steps:>5}"
+            cfg = replace(cfg, ppo=replace(cfg.ppo, rollout_steps=args.paper_rollout)
+                          ).with_run(num_envs=args.paper_envs)
+        collect, loop, share = measure(cfg, args.updates)
+        print(f"{preset:<8}{cfg.run.num_envs:>6}{cfg.env.num_agents:>8}"
+              f"{cfg.ppo.rollout_steps:>5}"
               f"{collect:>15.1f}{loop:>12.1f}{share:>10.0%}")
 
 

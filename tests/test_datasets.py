@@ -13,8 +13,8 @@ import tyro
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from collavn.cli.dataset import DatasetGenerate, DatasetInfo
 from collavn.datasets.build import generate_dataset
-from collavn.datasets.command import DatasetGenerate, DatasetInfo
 from collavn.datasets.episode import DIFFICULTY_BINS, Episode, in_bin
 from collavn.datasets.generator import (
     Preset,

@@ -51,10 +51,10 @@ def test_other_agents_are_visible_but_not_oneself(open_room):
     env = VectorEnv([open_room], 1, EnvConfig(num_agents=2, panorama_width=128,
                                               panorama_height=32, goal_size=16), seed=0)
     env.reset(seed=0)
-    world = env.groups[0][1]
+    world = env.groups[0].world
     world.position[0] = [[3.0, 4.0], [4.5, 4.0]]  # agent_1 1.5 m ahead of agent_0
     world.yaw[0] = [0.0, 0.0]
-    sensors = env.groups[0][2]
+    sensors = env.groups[0].sensors
     views = sensors.panoramas(world.poses())
     bare = sensors.renderer.render(world.poses()[0], "panorama").depth  # no bodies at all
     ahead = views.depth[0, 0, 16:, 64]  # agent_0: below the horizon, straight ahead
@@ -123,7 +123,7 @@ def test_random_episode_on_the_real_house(shared_scene, tmp_path):
     for _ in range(10):
         obs, _, *_, info = env.step(rng.uniform(-1, 1, (2, 2, 2)))
         records += info["episode_records"]
-        world = env.groups[0][1]
+        world = env.groups[0].world
         assert house.nav.is_navigable(world.position).all()
     assert len(records) == 4 and all(r.steps <= 10 for r in records)
 

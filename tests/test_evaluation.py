@@ -6,9 +6,9 @@ import pytest
 from collavn.cli import main
 from collavn.datasets.generator import sample_episodes
 from collavn.envs import EnvConfig
-from collavn.evaluation.policies import OraclePolicy, RandomPolicy
 from collavn.evaluation.runner import evaluate, read_records, write_records
 from collavn.metrics import compute_metrics
+from collavn.policies import OraclePolicy, RandomPolicy
 
 SMALL = EnvConfig(num_agents=2, panorama_width=32, panorama_height=8, goal_size=8)
 

@@ -6,8 +6,8 @@ import trimesh
 
 from collavn.errors import SceneError
 from collavn.scenes import Scene, load_scene
-from collavn.scenes.command import scene_summary
 from collavn.scenes.meshes import find_floors, load_mesh_scene
+from collavn.scenes.summary import scene_summary
 
 
 def _room_mesh(z_up: bool = True) -> trimesh.Trimesh:

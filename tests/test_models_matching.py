@@ -2,8 +2,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from collavn.configs import from_dict, to_dict
+from collavn.errors import ConfigError
 from collavn.models import ActorCritic, GoalMatcher, MatchConfig, ModelConfig
-from collavn.training.config import model_config_from_dict
 
 torch.set_num_threads(1)
 
@@ -80,9 +81,9 @@ def test_policy_with_and_without_matching_and_old_configs():
     for model in (on, off):
         out = model.act(obs, model.initial_state(1, 2), start)
         assert out.action.shape == (1, 2, 2) and torch.isfinite(out.value).all()
-    # a config saved before goal matching existed loads with it off
-    from dataclasses import asdict
-    d = asdict(off.cfg)
+    # configs round-trip exactly; one saved without goal matching is refused by name
+    d = to_dict(off.cfg)
     d.pop("goal_match")
-    assert model_config_from_dict(d) == off.cfg
-    assert model_config_from_dict(asdict(cfg)) == cfg
+    with pytest.raises(ConfigError, match="missing key goal_match"):
+        from_dict(ModelConfig, d)
+    assert from_dict(ModelConfig, to_dict(cfg)) == cfg

@@ -235,7 +235,7 @@ def test_warp_and_embree_agree(textured: Scene) -> None:
 def test_render_command_writes_image_and_depth(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
     from PIL import Image
 
-    from collavn.rendering.command import RenderCommand, parse_pose
+    from collavn.cli.render import RenderCommand, parse_pose
 
     monkeypatch.setenv("COLLAVN_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "pano.png"

@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 from collavn.errors import ActionError
 from collavn.simulation.kinematics import AgentParams, drive, overlapping
 from collavn.simulation.world import World, check_actions, relative_pose
-from collavn.tasks import get_task
+from collavn.tasks import get_task, step_world
 
 P = AgentParams()
 
@@ -98,15 +98,15 @@ def _episode(scene, starts, goal, yaws=None):
 
 def test_reward_is_geodesic_progress_minus_collision_penalty(open_room, door_scene):
     task = get_task("commongoal")
-    world = World(open_room, 1, 1, task)
+    world = World(open_room, 1, 1)
     world.reset_envs([0], [_episode(open_room, [[1.0, 4.0]], (6.0, 4.0))])
-    out = world.step(np.array([[[1.0, 0.0]]]))
+    out = step_world(world, np.array([[[1.0, 0.0]]]), task)
     assert out.reward[0, 0] == pytest.approx(0.70, abs=1e-6)  # straight line = geodesic
     # driving into the wall: no progress, one collision
-    world = World(door_scene, 1, 1, task)
+    world = World(door_scene, 1, 1)
     world.reset_envs([0], [_episode(door_scene, [[4.75, 1.0]], (2.0, 1.0), yaws=[0.0])])
     d0 = world.distance[0, 0]
-    out = world.step(np.array([[[1.0, 0.0]]]))
+    out = step_world(world, np.array([[[1.0, 0.0]]]), task)
     assert out.collided[0, 0]
     assert out.reward[0, 0] == pytest.approx(d0 - world.distance[0, 0] - 0.05, abs=1e-9)
     assert world.collisions[0, 0] == 1
@@ -116,14 +116,14 @@ def test_success_terminates_and_time_limit_truncates(open_room):
     from dataclasses import replace
 
     task = replace(get_task("commongoal"), max_steps=3)
-    world = World(open_room, 1, 2, task)
+    world = World(open_room, 1, 2)
     world.reset_envs([0], [_episode(open_room, [[2.0, 2.0], [2.0, 6.0]], (3.8, 2.0))])
-    out = world.step(np.array([[[1.0, 0.0], [0.0, 0.0]]]))  # 1.8 → 1.1 m: not yet
+    out = step_world(world, np.array([[[1.0, 0.0], [0.0, 0.0]]]), task)  # 1.8 → 1.1 m: not yet
     assert not out.terminated.any()
-    out = world.step(np.array([[[1.0, 0.0], [0.0, 0.0]]]))  # 1.1 → 0.4 m: success
+    out = step_world(world, np.array([[[1.0, 0.0], [0.0, 0.0]]]), task)  # 1.1 → 0.4 m: success
     assert out.terminated[0, 0] and not out.truncated[0, 0]
     assert world.success[0, 0] and not world.running[0, 0]
-    out = world.step(np.array([[[1.0, 0.0], [0.0, 0.0]]]))
+    out = step_world(world, np.array([[[1.0, 0.0], [0.0, 0.0]]]), task)
     assert out.truncated[0, 1] and not out.terminated[0, 1]  # step 3 = T
     assert out.reward[0, 0] == 0.0  # finished agents earn nothing and stay put
     np.testing.assert_allclose(world.position[0, 0], [3.4, 2.0])

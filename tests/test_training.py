@@ -8,9 +8,15 @@ import numpy as np
 import pytest
 import torch
 
-from collavn.errors import CollavnError
-from collavn.training.command import Train
-from collavn.training.config import TrainConfig
+from collavn.cli.train import parse
+from collavn.errors import CollavnError, ConfigError
+from collavn.training.config import (
+    CPU_REASONS,
+    RunConfig,
+    TrainConfig,
+    preset_config,
+    preset_deviations,
+)
 from collavn.training.distributed import DistInfo
 from collavn.training.imitation import imitation_loss, imitation_update
 from collavn.training.ppo import critic_parameters, ppo_loss, ppo_update
@@ -53,29 +59,75 @@ def test_gae_reduces_to_discounted_return_with_lambda_one():
 
 
 def test_presets_keep_paper_values_and_cli_overrides():
-    paper = TrainConfig.preset_config("paper", method="no-mem")
+    paper = preset_config("paper", method="no-mem")
     assert (paper.ppo.num_minibatches, paper.ppo.update_epochs) == (5, 8)
     assert (paper.ppo.lr, paper.ppo.ent_coef, paper.ppo.vf_coef, paper.ppo.gamma) == (
         1e-5, 0.001, 0.5, 0.99)
-    assert paper.num_envs == 25 and paper.model.encoder == "resnet18"
+    assert paper.run.num_envs == 25 and paper.model.encoder == "resnet18"
     assert (paper.mapping.fifo_size, paper.mapping.updates, paper.mapping.batch_size) == (
         5000, 10, 64)
     assert paper.model.comm.variant == "handshake"
     assert paper.model.panorama_shape == (3, 128, 512)
-    cfg = Train(method="no-com", preset="cpu", lr=1e-3, num_envs=3, out="x").config()
-    assert cfg.ppo.lr == 1e-3 and cfg.num_envs == 3 and cfg.model.comm.variant == "none"
-    assert cfg.model.panorama_shape == (3, cfg.panorama_height, cfg.panorama_width)
+    cfg = parse(["--method", "no-com", "--preset", "cpu", "--ppo.lr", "1e-3", "--num-envs",
+                 "3", "--out", "x", "--ppo.clip-coef", "0.1", "--ppo.ent-coef", "0.01",
+                 "--ppo.gae-lambda", "0.9", "--model.hidden-size", "64", "--agents", "3"])
+    assert cfg.ppo.lr == 1e-3 and cfg.run.num_envs == 3 and cfg.model.comm.variant == "none"
+    assert (cfg.ppo.clip_coef, cfg.ppo.ent_coef, cfg.ppo.gae_lambda) == (0.1, 0.01, 0.9)
+    assert cfg.model.hidden_size == 64 and cfg.env.num_agents == 3
+    assert cfg.model.panorama_shape == (3, cfg.env.panorama_height, cfg.env.panorama_width)
+    assert cfg.preset == "cpu" and cfg.model.encoder == "small"
     assert TrainConfig.from_dict(cfg.to_dict()) == cfg
+    # the image sizes are stated once (env); the model's shapes follow them
+    small = cfg.with_env(panorama_width=64, panorama_height=16)
+    assert small.model.panorama_shape == (3, 16, 64)
 
 
-def test_every_config_field_has_a_docstring_in_help(capsys):
-    import tyro
+def test_saved_config_round_trips_exactly_and_refuses_unknown_or_missing_keys(tmp_path):
+    import json
 
+    for name in ("paper", "cpu"):
+        cfg = preset_config(name, method="il")
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(cfg.to_dict()))
+        assert TrainConfig.from_dict(json.loads(path.read_text())) == cfg
+    d = preset_config("cpu").to_dict()
+    d["ppo"]["clip_coeff"] = 0.1
+    with pytest.raises(ConfigError, match=r"unknown config key ppo\.clip_coeff"):
+        TrainConfig.from_dict(d)
+    d = preset_config("cpu").to_dict()
+    del d["model"]["map"]["hidden"]
+    with pytest.raises(ConfigError, match=r"missing key model\.map\.hidden"):
+        TrainConfig.from_dict(d)
+
+
+def test_cpu_deviations_are_computed_and_every_one_has_a_reason():
+    deviations = preset_deviations()
+    missing = [path for path, (_, _, why) in deviations.items() if why is None]
+    assert missing == []
+    # a reason for a field that no longer differs is stale
+    stale = [k for k in CPU_REASONS if not any(p == k or p.startswith(k + ".")
+                                               for p in deviations)]
+    assert stale == []
+    assert deviations["ppo.lr"][:2] == (1e-5, 1e-3)
+    assert deviations["model.comm.value_dim"][:2] == (2048, 256)
+    assert "ppo.clip_coef" not in deviations
+    # a new difference without a reason is reported as such
+    assert preset_deviations(reasons={})["ppo.lr"][2] is None
+
+
+def test_every_config_field_is_a_flag_with_a_docstring_in_help(capsys):
     with pytest.raises(SystemExit):
-        tyro.cli(Train, args=["--help"])
+        parse(["--help"])
     text = capsys.readouterr().out
-    for f in dataclasses.fields(Train):
+    for section in ("ppo", "mapping", "imitation"):
+        for f in dataclasses.fields(getattr(preset_config("cpu"), section)):
+            assert f"--{section}." + f.name.replace("_", "-") in text
+    for f in dataclasses.fields(RunConfig):
         assert "--" + f.name.replace("_", "-") in text
+    for flag in ("--method", "--agents", "--task", "--panorama-width", "--env.difficulty",
+                 "--model.hidden-size", "--model.comm.memory-slots"):
+        assert flag in text
+    assert "--model.panorama-shape" not in text  # derived from env, not a flag
 
 
 def _fixed_batch(method: str):
@@ -102,7 +154,7 @@ def test_ppo_loss_goes_down_on_a_fixed_batch():
     assert np.isfinite(stats["approx_kl"])
 
 
-def test_critic_warmup_moves_only_the_critic_and_lowers_the_value_loss():
+def test_critic_warmup_moves_only_the_critic_and_lowers_the_value_loss(capsys):
     cfg, run, rollout = _fixed_batch("no-com")
     adv, ret = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
                            rollout.truncated, rollout.last_value, 0.99, 0.95)
@@ -129,7 +181,10 @@ def test_critic_warmup_moves_only_the_critic_and_lowers_the_value_loss():
     run.iteration = 1
     assert learn(run, rollout)["loss/critic_warmup"] == 0.0
     with pytest.raises(CollavnError, match="critic_warmup must be ≥ 0, got -1"):
-        Train(method="no-com", preset="cpu", critic_warmup=-1, out="x").config()
+        dataclasses.replace(run.cfg, ppo=dataclasses.replace(run.cfg.ppo, critic_warmup=-1))
+    with pytest.raises(SystemExit):  # on the command line: tyro's error box, exit 2
+        parse(["--method", "no-com", "--ppo.critic-warmup", "-1", "--out", "x"])
+    assert "critic_warmup must be ≥ 0, got -1" in capsys.readouterr().err
 
 
 def test_imitation_loss_goes_down_on_a_fixed_batch():
@@ -145,7 +200,7 @@ def test_imitation_loss_goes_down_on_a_fixed_batch():
 
 
 def test_map_fifo_keeps_the_newest_samples():
-    from collavn.training.mapping import MapFIFO
+    from collavn.training.map_training import MapFIFO
 
     fifo = MapFIFO(capacity=3)
     for start in (0, 2):
@@ -181,8 +236,8 @@ def test_envs_visit_every_training_scene_when_there_are_more_scenes_than_envs():
 
 
 def test_sync_points_move_the_envs_to_the_next_scenes():
-    cfg = tiny_config("no-com", num_envs=1, scenes=("procedural:0", "procedural:1"),
-                      checkpoint_interval=1)
+    cfg = tiny_config("no-com").with_run(num_envs=1, checkpoint_interval=1,
+                                         scenes=("procedural:0", "procedural:1"))
     run = build_run(cfg, DistInfo(), torch.device("cpu"))
     seen = []
     for k in range(3):

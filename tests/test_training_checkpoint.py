@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from collavn.errors import CheckpointError
-from collavn.training.checkpoint import load_checkpoint, load_policy, save_checkpoint
+from collavn.policies.checkpoint import load_checkpoint, load_policy, save_checkpoint
 from collavn.training.trainer import CHECKPOINT, train
 from training_fixtures import tiny_config
 
@@ -46,6 +46,9 @@ def test_corrupt_or_foreign_files_are_refused(tmp_path):
         load_checkpoint(tmp_path / "foreign.pt")
     with pytest.raises(CheckpointError, match="no checkpoint"):
         load_checkpoint(tmp_path / "missing.pt")
+    torch.save({"format": 1, "config": {}, "model": {}}, tmp_path / "old.pt")
+    with pytest.raises(CheckpointError, match=r"format 1.*communication semantics changed"):
+        load_checkpoint(tmp_path / "old.pt")
 
 
 @pytest.fixture(scope="module")
@@ -53,11 +56,11 @@ def resumed_and_straight(tmp_path_factory):
     """4 updates straight vs 2 updates, stop, resume for 2 more (sync every 2)."""
     root = tmp_path_factory.mktemp("resume")
     cfg = tiny_config("ours", out=str(root / "straight"))
-    per_update = cfg.ppo.rollout_steps * cfg.num_envs * cfg.agents
-    straight = train(replace(cfg, total_steps=4 * per_update))
-    part = replace(cfg, out=str(root / "resumed"), total_steps=2 * per_update)
+    per_update = cfg.ppo.rollout_steps * cfg.run.num_envs * cfg.env.num_agents
+    straight = train(cfg.with_run(total_steps=4 * per_update))
+    part = cfg.with_run(out=str(root / "resumed"), total_steps=2 * per_update)
     first = train(part)
-    resumed = train(replace(part, total_steps=4 * per_update), resume=True)
+    resumed = train(part.with_run(total_steps=4 * per_update, resume=True))
     return cfg, root, straight, first, resumed
 
 
@@ -70,7 +73,7 @@ def test_resume_gives_bit_identical_parameters(resumed_and_straight):
         assert torch.equal(a[k], b[k]), k
     # ...and training did change them.
     fresh = tiny_config("ours")
-    torch.manual_seed(fresh.seed)
+    torch.manual_seed(fresh.run.seed)
     from collavn.models.policy import ActorCritic
 
     init = ActorCritic(fresh.model).state_dict()
@@ -87,9 +90,10 @@ def test_run_directory_holds_config_and_tensorboard(resumed_and_straight):
 
 def test_resume_with_another_config_is_refused(resumed_and_straight):
     cfg, root, *_ = resumed_and_straight
-    other = replace(cfg, out=str(root / "straight"), ppo=replace(cfg.ppo, lr=1.0))
+    other = replace(cfg, ppo=replace(cfg.ppo, lr=1.0)).with_run(out=str(root / "straight"),
+                                                                 resume=True)
     with pytest.raises(CheckpointError, match=r"different configuration.*ppo\.lr"):
-        train(other, resume=True)
+        train(other)
 
 
 def test_checkpoint_loads_as_an_evaluation_policy_for_any_n(resumed_and_straight):
@@ -115,11 +119,11 @@ def test_init_from_loads_weights_and_refuses_another_model(resumed_and_straight)
 
     cfg, root, *_ = resumed_and_straight
     source = root / "straight" / CHECKPOINT
-    run = build_run(replace(cfg, init_from=str(source)), DistInfo(), torch.device("cpu"))
+    run = build_run(cfg.with_run(init_from=str(source)), DistInfo(), torch.device("cpu"))
     for name, value in run.model.state_dict().items():
         torch.testing.assert_close(value, _params(source)[name], rtol=0, atol=0)
-    other = replace(cfg, init_from=str(source),
-                    model=replace(cfg.model, hidden_size=cfg.model.hidden_size * 2))
+    other = replace(cfg, model=replace(cfg.model, hidden_size=cfg.model.hidden_size * 2)
+                    ).with_run(init_from=str(source))
     with pytest.raises(CheckpointError, match=r"model config differs.*hidden_size"):
         build_run(other, DistInfo(), torch.device("cpu"))
 

@@ -33,7 +33,7 @@ def _worker(rank: int, world: int, port: int, out: str) -> None:
         rollout, _ = collect_rollout(run)
         learn(run, rollout)
         torch.save({"before": before, "after": run.model.state_dict(),
-                    "panorama": rollout.obs["panorama"], "seed": info.seed(cfg.seed)},
+                    "panorama": rollout.obs["panorama"], "seed": info.seed(cfg.run.seed)},
                    os.path.join(out, f"rank{rank}.pt"))
     finally:
         distributed.cleanup()

@@ -5,8 +5,15 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any
 
+from collavn.envs.config import EnvConfig
 from collavn.models.config import CommConfig, MapConfig, ModelConfig
-from collavn.training.config import MapTrainConfig, PPOConfig, TrainConfig
+from collavn.training.config import (
+    MapTrainConfig,
+    PPOConfig,
+    RunConfig,
+    TrainConfig,
+    preset_config,
+)
 
 TINY_MODEL = ModelConfig.cpu(
     embed_dim=32, hidden_size=32, critic_hidden_size=16,
@@ -18,11 +25,13 @@ TINY_MODEL = ModelConfig.cpu(
 def tiny_config(method: str = "ours", out: str = "runs/tiny", rollout_steps: int = 4,
                 **overrides: Any) -> TrainConfig:
     """Two envs of two agents in one procedural scene, 32×64 panoramas, tiny nets."""
-    base = TrainConfig.preset_config(
-        "cpu", method=method, out=out, num_envs=2, scenes=("procedural:0",),
-        panorama_width=64, panorama_height=16, goal_size=16, model=TINY_MODEL,
-        checkpoint_interval=2, progress=False, torch_threads=1,
-        mapping=MapTrainConfig(fifo_size=64, updates=1, batch_size=8, every=2))
-    base = replace(base, ppo=PPOConfig(rollout_steps=rollout_steps, num_minibatches=2,
-                                       update_epochs=2, lr=3e-4))
-    return replace(base, **overrides).resolved()
+    base = preset_config(
+        "cpu", method=method, model=TINY_MODEL,
+        env=EnvConfig(panorama_width=64, panorama_height=16, goal_size=16,
+                      difficulty="easy", render_threads=1),
+        run=RunConfig(out=out, num_envs=2, scenes=("procedural:0",), checkpoint_interval=2,
+                      progress=False, torch_threads=1),
+        mapping=MapTrainConfig(fifo_size=64, updates=1, batch_size=8, every=2),
+        ppo=PPOConfig(rollout_steps=rollout_steps, num_minibatches=2, update_epochs=2,
+                      lr=3e-4))
+    return replace(base, **overrides)

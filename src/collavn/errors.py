@@ -23,3 +23,7 @@ class DatasetError(CollavnError, ValueError):
 
 class CheckpointError(CollavnError, ValueError):
     """A checkpoint is unreadable or was written by a different configuration."""
+
+
+class ConfigError(CollavnError, ValueError):
+    """A configuration value or a saved configuration is invalid."""

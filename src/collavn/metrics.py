@@ -18,8 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Difficulty names in table order (see ``collavn.datasets.episode.DIFFICULTY_BINS``).
-DIFFICULTIES = ("easy", "medium", "hard")
+from collavn.datasets.episode import DIFFICULTY_BINS
+
+#: Difficulty names in table order.
+DIFFICULTIES = tuple(DIFFICULTY_BINS)
 #: Metric names in table order; ↑ higher is better, ↓ lower is better.
 METRICS = ("SR", "DTS", "SPL", "SSR")
 _ARROWS = {"SR": "↑", "DTS": "↓", "SPL": "↑", "SSR": "↑"}

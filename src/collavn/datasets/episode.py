@@ -7,16 +7,16 @@ files (``storage.py``); the simulator turns it into an initial world state.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from collavn.errors import DatasetError
+from collavn.scenes.splits import SPLITS
+from collavn.tasks import TASKS
 
-#: Task settings of the paper.
-TASKS = ("commongoal", "specificgoal", "adhocoop")
-#: Data splits; scenes are disjoint between them.
-SPLITS = ("train", "val", "test")
+#: A difficulty bin's name (the keys of :data:`DIFFICULTY_BINS`).
+Difficulty = Literal["easy", "medium", "hard"]
 #: Geodesic start-to-goal bins ``[lo, hi)`` in metres; ``hard`` includes its upper end.
 DIFFICULTY_BINS: dict[str, tuple[float, float]] = {
     "easy": (1.5, 3.0),

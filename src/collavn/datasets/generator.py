@@ -40,6 +40,7 @@ from collavn.datasets.episode import (
 from collavn.errors import DatasetError
 from collavn.scenes.navigation import GeodesicField, NavGrid
 from collavn.scenes.scene import Scene
+from collavn.scenes.splits import SPLITS
 
 #: Positions, yaws and distances are rounded to this many decimals (0.1 mm) so that
 #: stored episodes reproduce exactly after a JSON round trip.
@@ -208,7 +209,7 @@ def episode_rng(seed: int, task: str, num_agents: int, split: str,
     """
     shared = 0 if check_task(task) in ("commongoal", "adhocoop") else 1
     name_key = int.from_bytes(hashlib.sha256(scene_name.encode()).digest()[:8], "little")
-    key = (shared, num_agents, ("train", "val", "test").index(check_split(split)), name_key)
+    key = (shared, num_agents, SPLITS.index(check_split(split)), name_key)
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
 
 

@@ -16,13 +16,10 @@ same content (canonical JSON, gzip ``mtime=0``).
 
 from __future__ import annotations
 
-import contextlib
 import gzip
 import hashlib
 import json
-import os
 import re
-import tempfile
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +27,7 @@ from typing import Any
 
 from collavn.datasets.episode import Episode, SceneRef, check_split, check_task
 from collavn.errors import DatasetError
+from collavn.files import atomic_write
 from collavn.scenes.scene import Scene
 
 #: Bumped whenever the layout of an episode file changes.
@@ -220,26 +218,6 @@ class Dataset:
 
     def __len__(self) -> int:
         return sum(len(c.episodes) for c in self.files.values())
-
-
-def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it over ``path``.
-
-    A failure at any point leaves ``path`` as it was and no temporary file behind.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
 
 
 def _canonical(obj: Any) -> bytes:

@@ -4,13 +4,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
+import tyro
 
-from collavn.datasets.episode import Episode
+from collavn.datasets.episode import DIFFICULTY_BINS, Episode
 from collavn.errors import CollavnError
 from collavn.scenes.scene import Scene
+from collavn.tasks import TASKS, TaskName
+
+#: Difficulty of on-the-fly episodes: a bin, or ``mixed`` (a bin drawn per episode).
+DifficultyChoice = Literal["easy", "medium", "hard", "mixed"]
 
 
 @dataclass(frozen=True)
@@ -43,21 +48,21 @@ class EnvConfig:
             tools, never for a learning agent's policy.
     """
 
-    task: str = "commongoal"
-    num_agents: int = 2
-    panorama_width: int = 512
-    panorama_height: int = 128
-    goal_size: int = 128
+    task: Annotated[TaskName, tyro.conf.arg(aliases=("--task",))] = "commongoal"
+    num_agents: Annotated[int, tyro.conf.arg(aliases=("--agents",))] = 2
+    panorama_width: Annotated[int, tyro.conf.arg(aliases=("--panorama-width",))] = 512
+    panorama_height: Annotated[int, tyro.conf.arg(aliases=("--panorama-height",))] = 128
+    goal_size: Annotated[int, tyro.conf.arg(aliases=("--goal-size",))] = 128
     camera_height: float = 0.9
     depth: bool = False
     gt_map: bool = False
     gt_map_size: int = 64
     odometry_noise: float = 0.0
     max_steps: int = 80
-    difficulty: str = "mixed"
+    difficulty: DifficultyChoice = "mixed"
     backend: Literal["embree", "warp"] = "embree"
     device: str = "cpu"
-    render_threads: int = 2
+    render_threads: Annotated[int, tyro.conf.arg(aliases=("--render-threads",))] = 2
     obs_device: str | None = None
     privileged: bool = False
 
@@ -68,8 +73,14 @@ class EnvConfig:
             raise CollavnError("image sizes must be positive")
         if self.max_steps < 1:
             raise CollavnError(f"max_steps must be ≥ 1, got {self.max_steps}")
-        if self.difficulty not in ("easy", "medium", "hard", "mixed"):
-            raise CollavnError(f"unknown difficulty {self.difficulty!r}")
+        if self.difficulty not in (*DIFFICULTY_BINS, "mixed"):
+            raise CollavnError(f"unknown difficulty {self.difficulty!r}; expected one of "
+                               f"{', '.join(DIFFICULTY_BINS)} or mixed")
+        if self.task not in TASKS:
+            raise CollavnError(f"unknown task {self.task!r}; expected one of "
+                               f"{', '.join(TASKS)}")
+        if self.render_threads < 1:
+            raise CollavnError(f"render_threads must be ≥ 1, got {self.render_threads}")
 
 
 class EpisodeSource:
@@ -111,9 +122,9 @@ class EpisodeSource:
             return ep
         from collavn.datasets.generator import sample_episodes
 
-        difficulty = self.config.difficulty
+        difficulty: str = self.config.difficulty
         if difficulty == "mixed":
-            difficulty = str(rng.choice(["easy", "medium", "hard"]))
+            difficulty = str(rng.choice(list(DIFFICULTY_BINS)))
         task = "commongoal" if self.config.task == "adhocoop" else self.config.task
         return sample_episodes(self.scene, task, self.config.num_agents, difficulty, 1,
                                rng)[0]

@@ -73,7 +73,7 @@ class CollaVNParallelEnv(ParallelEnv):
               ) -> tuple[dict[str, Any], dict[str, Any]]:
         """Start an episode: ``options={"episode": Episode}`` forces a given one."""
         if options and "episode" in options:
-            self._vec.groups[0][3].push(options["episode"])
+            self._vec.groups[0].source.push(options["episode"])
         obs, _ = self._vec.reset(seed=seed)
         self._last = obs
         self.agents = list(self.possible_agents)
@@ -93,14 +93,12 @@ class CollaVNParallelEnv(ParallelEnv):
                 a = np.asarray(actions[name], dtype=np.float64)
                 if a.shape != (2,):
                     raise ActionError(f"action of {name} must have shape (2,), got {a.shape}")
-                if not np.isfinite(a).all():
-                    raise ActionError(f"action of {name} is not finite: {a.tolist()}")
-                batch[0, i] = a
+                batch[0, i] = a  # NaN/inf: refused by check_actions, naming agent_i
         obs, reward, term, trunc, info = self._vec.step(batch)
         self._last = obs
         live = list(self.agents)
         idx = {a: self.possible_agents.index(a) for a in live}
-        world = self._vec.groups[0][1]
+        world = self._vec.groups[0].world
         infos = {a: {"collided": bool(info["collided"][0, i]),
                      "success": bool(world.success[0, i]),
                      "geodesic_distance": float(world.distance[0, i])}
@@ -115,13 +113,13 @@ class CollaVNParallelEnv(ParallelEnv):
         """An ``(H, W, 3)`` uint8 picture: each agent's panorama beside its goal image."""
         if self.render_mode is None or self._last is None:
             return None
-        from collavn.viz.frames import views_strip
+        from collavn.rendering.frames import views_strip
 
         return views_strip(self._last["panorama"][0], self._last["goal"][0])
 
     def state(self) -> np.ndarray:
         """Global state for centralised tools: ``(N, 3)`` world poses (not an observation)."""
-        return self._vec.groups[0][1].poses()[0].astype(np.float32)
+        return self._vec.groups[0].world.poses()[0].astype(np.float32)
 
     def _split(self, obs: dict[str, np.ndarray], agents: list[str]) -> dict[str, Any]:
         keys = [k for k in self._obs_space.spaces]

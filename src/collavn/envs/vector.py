@@ -24,6 +24,7 @@ Contract (Gymnasium vocabulary):
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -35,10 +36,30 @@ from collavn.errors import CollavnError
 from collavn.metrics import AgentRecord
 from collavn.scenes.scene import Scene
 from collavn.simulation.kinematics import AgentParams
-from collavn.simulation.world import World, relative_pose
-from collavn.tasks import get_task
+from collavn.simulation.world import World, check_actions, relative_pose
+from collavn.tasks import get_task, step_world
 
 AUTORESET_MODE = "SAME_STEP"
+
+
+@dataclass
+class SceneGroup:
+    """The envs of a :class:`VectorEnv` that live in one scene, stepped as one batch.
+
+    Attributes:
+        envs: ``(E_g,)`` global indices of the group's envs (local env ``i`` is global
+            ``envs[i]``).
+        world: Their simulator state.
+        sensors: Their renderer and sensor models.
+        source: Where their episodes come from.
+        episodes: The episode running in each local env.
+    """
+
+    envs: np.ndarray
+    world: World
+    sensors: Sensors
+    source: EpisodeSource
+    episodes: list[Episode | None] = field(default_factory=list)
 
 
 class VectorEnv:
@@ -69,22 +90,19 @@ class VectorEnv:
             raise CollavnError("give one episode list per scene")
         self.config, self.num_envs, self.num_agents = config, num_envs, config.num_agents
         self.autoreset = autoreset
-        self.task = get_task(config.task)
-        if config.max_steps != self.task.max_steps:
-            from dataclasses import replace
-
-            self.task = replace(self.task, max_steps=config.max_steps)
+        self.task = replace(get_task(config.task), max_steps=config.max_steps)
         self.params = params or AgentParams()
         self.rng = np.random.default_rng(seed)
-        self.groups: list[tuple[np.ndarray, World, Sensors, EpisodeSource]] = []
+        self.groups: list[SceneGroup] = []
         env_scene = np.arange(num_envs) % len(scenes)
         for s, scene in enumerate(scenes):
             envs = np.flatnonzero(env_scene == s)
             if len(envs) == 0:
                 continue
-            world = World(scene, len(envs), config.num_agents, self.task, self.params)
+            world = World(scene, len(envs), config.num_agents, self.params)
             source = EpisodeSource(scene, config, None if episodes is None else episodes[s])
-            self.groups.append((envs, world, Sensors(scene, config), source))
+            self.groups.append(SceneGroup(envs, world, Sensors(scene, config), source,
+                                          [None] * len(envs)))
         self._goal_images = np.zeros((num_envs, config.num_agents, 3, config.goal_size,
                                       config.goal_size), dtype=np.uint8)
         self._last_pose = np.zeros((num_envs, config.num_agents, 3))
@@ -94,9 +112,8 @@ class VectorEnv:
         """Start a new episode in every env; returns ``(obs, info)``."""
         if seed is not None:
             self.rng = np.random.default_rng(seed)
-        for _, world, sensors, source in self.groups:
-            local = np.arange(world.num_envs)
-            self._start(world, sensors, source, local)
+        for group in self.groups:
+            self._start(group, np.arange(group.world.num_envs))
         return self._deliver(self._observe()), {"episode_done": np.zeros(self.num_envs, bool)}
 
     def step(self, actions: np.ndarray) -> tuple[dict[str, Any], np.ndarray, np.ndarray,
@@ -106,29 +123,25 @@ class VectorEnv:
             import torch
 
             actions = torch.as_tensor(actions).detach().cpu().numpy()
-        actions = np.asarray(actions, dtype=np.float64)
-        if actions.shape != (self.num_envs, self.num_agents, 2):
-            from collavn.errors import ActionError
-
-            raise ActionError(f"actions must have shape ({self.num_envs}, {self.num_agents}, "
-                              f"2), got {actions.shape}")
+        actions = check_actions(actions, self.num_envs, self.num_agents)
         e, n = self.num_envs, self.num_agents
         reward, terminated = np.zeros((e, n), np.float32), np.zeros((e, n), bool)
         truncated, collided = np.zeros((e, n), bool), np.zeros((e, n), bool)
         done = np.zeros(e, dtype=bool)
         final_poses = np.zeros((e, n, 3))
         records: list[AgentRecord] = []
-        for envs, world, sensors, source in self.groups:
-            out = world.step(actions[envs])
+        for group in self.groups:
+            envs, world = group.envs, group.world
+            out = step_world(world, actions[envs], self.task)
             final_poses[envs] = world.poses()
             reward[envs], terminated[envs] = out.reward, out.terminated
             truncated[envs], collided[envs] = out.truncated, out.collided
             finished = np.flatnonzero(~world.running.any(axis=1) & out.any_finished)
             if len(finished):
                 done[envs[finished]] = True
-                records += episode_records(world, finished)
+                records += episode_records(group, finished)
                 if self.autoreset:
-                    self._start(world, sensors, source, finished)
+                    self._start(group, finished)
         info = {"collided": collided, "episode_done": done, "episode_records": records,
                 "final_poses": final_poses}
         return self._deliver(self._observe()), reward, terminated, truncated, info
@@ -136,24 +149,25 @@ class VectorEnv:
     @property
     def scenes(self) -> list[Scene]:
         """The scene of each group, indexed by ``obs["scene_index"]``."""
-        return [world.scene for _, world, _, _ in self.groups]
+        return [group.world.scene for group in self.groups]
 
-    def world_of(self, env: int) -> tuple[World, int]:
-        """The world holding env ``env`` and its local index there."""
-        for envs, world, _, _ in self.groups:
-            hit = np.flatnonzero(envs == env)
+    def group_of(self, env: int) -> tuple[SceneGroup, int]:
+        """The group holding env ``env`` and its local index there."""
+        for group in self.groups:
+            hit = np.flatnonzero(group.envs == env)
             if len(hit):
-                return world, int(hit[0])
+                return group, int(hit[0])
         raise IndexError(f"no env {env}")
 
     # -------------------------------------------------------------- internals
-    def _start(self, world: World, sensors: Sensors, source: EpisodeSource,
-               local: np.ndarray) -> None:
-        envs = next(g[0] for g in self.groups if g[1] is world)
-        episodes = [source.next(self.rng) for _ in local]
+    def _start(self, group: SceneGroup, local: np.ndarray) -> None:
+        world, envs = group.world, group.envs
+        episodes = [group.source.next(self.rng) for _ in local]
         world.reset_envs(list(local), episodes)
+        for e, ep in zip(local, episodes, strict=True):
+            group.episodes[e] = ep
         goal_poses = np.concatenate([world.goal[local], world.goal_yaw[local][..., None]], -1)
-        self._goal_images[envs[local]] = sensors.goal_images(goal_poses)
+        self._goal_images[envs[local]] = group.sensors.goal_images(goal_poses)
         self._last_pose[envs[local]] = world.poses()[local]
 
     def _deliver(self, obs: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -183,7 +197,8 @@ class VectorEnv:
             obs["world_pose"] = np.zeros((e, n, 3), np.float64)
             obs["goal_position"] = np.zeros((e, n, 2), np.float64)
             obs["scene_index"] = np.zeros(e, np.int64)
-        for g, (envs, world, sensors, _) in enumerate(self.groups):
+        for g, group in enumerate(self.groups):
+            envs, world, sensors = group.envs, group.world, group.sensors
             poses = world.poses()
             views = sensors.panoramas(poses)
             obs["panorama"][envs] = views.rgb
@@ -205,11 +220,11 @@ class VectorEnv:
         return obs
 
 
-def episode_records(world: World, local_envs: np.ndarray) -> list[AgentRecord]:
-    """Per-agent records of the episodes in ``local_envs`` of ``world``."""
-    out = []
+def episode_records(group: SceneGroup, local_envs: np.ndarray) -> list[AgentRecord]:
+    """Per-agent records of the episodes in ``local_envs`` of ``group``."""
+    out, world = [], group.world
     for e in local_envs:
-        ep = world.episodes[e]
+        ep = group.episodes[e]
         assert ep is not None
         for a in range(world.num_agents):
             out.append(AgentRecord(

@@ -13,8 +13,8 @@ import numpy as np
 from collavn.datasets.episode import Episode
 from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv
-from collavn.evaluation.policies import Policy
 from collavn.metrics import AgentRecord
+from collavn.policies.base import Policy
 from collavn.scenes.scene import Scene
 
 
@@ -66,7 +66,7 @@ def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: 
     """Run ``policy`` on each episode of one scene exactly once.
 
     Args:
-        policy: Acts for ``(E, N)`` agents (see :mod:`collavn.evaluation.policies`).
+        policy: Acts for ``(E, N)`` agents (see :mod:`collavn.policies`).
         scene: The scene the episodes belong to.
         episodes: Episodes with ``config.num_agents`` agents each.
         config: Sensors and rules (``num_agents`` may differ from training: Ad-hoCoop).
@@ -80,13 +80,14 @@ def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: 
     env = VectorEnv([scene], num_envs, config, episodes=[episodes], seed=seed)
     obs, _ = env.reset(seed=seed)
     state = policy.initial_state(num_envs, config.num_agents)
-    world = env.groups[0][1]
+    group = env.groups[0]
+    world = group.world
     wanted = {ep.episode_id for ep in episodes[:keep_trajectories]}
     paths: list[list[np.ndarray]] = [[world.poses()[e]] for e in range(num_envs)]
     done: dict[str, list[AgentRecord]] = {}
     trajectories: list[Trajectory] = []
     while len(done) < len(episodes):
-        before = [world.episodes[e] for e in range(num_envs)]
+        before = list(group.episodes)
         actions, state = policy.act(obs, state)
         obs, _, _, _, info = env.step(actions)
         ended = info["episode_done"]

@@ -8,7 +8,9 @@ a laptop CPU (small CNN, 32×128 panoramas, a 96×96 map at 20 cm).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Annotated, Literal
+
+import tyro
 
 EncoderKind = Literal["resnet18", "small"]
 CommVariant = Literal["none", "handshake", "memory"]
@@ -83,7 +85,7 @@ class CommConfig:
         bytes_per_float: Wire size of one transmitted number (float32 = 4).
     """
 
-    variant: CommVariant = "memory"
+    variant: Annotated[CommVariant, tyro.conf.Suppress] = "memory"
     query_dim: int = 256
     key_dim: int = 256
     value_dim: int = 2048
@@ -152,8 +154,8 @@ class ModelConfig:
 
     encoder: EncoderKind = "resnet18"
     embed_dim: int = 1024
-    panorama_shape: tuple[int, int, int] = (3, 128, 512)
-    goal_shape: tuple[int, int, int] = (3, 128, 128)
+    panorama_shape: Annotated[tuple[int, int, int], tyro.conf.Suppress] = (3, 128, 512)
+    goal_shape: Annotated[tuple[int, int, int], tyro.conf.Suppress] = (3, 128, 128)
     weights_path: str | None = None
     hidden_size: int = 512
     critic_hidden_size: int = 512

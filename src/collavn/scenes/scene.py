@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from collavn.errors import SceneError
+from collavn.files import atomic_write
 from collavn.scenes.navigation import GeodesicField, NavConfig, NavGrid
 
 #: Bumped whenever the on-disk layout of a saved scene changes.
@@ -150,10 +151,7 @@ class Scene:
             **self.nav.to_arrays(),
         )
         np.savez_compressed(buf, **arrays)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_bytes(buf.getvalue())
-        tmp.replace(path)
+        atomic_write(path, buf.getvalue())
 
     @classmethod
     def load(cls, path: str | Path) -> Scene:

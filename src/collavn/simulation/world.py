@@ -1,41 +1,72 @@
 """Batched world state of ``E`` environments × ``N`` agents in one scene.
 
-The :class:`World` owns no randomness and renders nothing: it starts episodes from
-:class:`~collavn.datasets.episode.Episode` data, applies actions through the
-kinematics, and keeps the per-agent bookkeeping that metrics need.
+The :class:`World` owns no randomness, renders nothing and knows no task rules: it
+starts episodes from any :class:`Start` (e.g. a dataset ``Episode``), applies actions
+through the kinematics, and keeps the per-agent bookkeeping that metrics need. Reward,
+success and time limits are the task's: :func:`collavn.tasks.step_world` steps a world
+and applies them.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from collavn.datasets.episode import Episode
 from collavn.errors import ActionError, SceneError
 from collavn.scenes.scene import Scene
 from collavn.simulation.kinematics import AgentParams, drive, overlapping, wrap_angle
-from collavn.tasks import TaskSpec, step_reward, succeeded
+
+
+class Start(Protocol):
+    """Where an episode's agents start and where their goals are (an ``Episode`` is one)."""
+
+    @property
+    def episode_id(self) -> str:
+        """Names the episode in error messages."""
+        ...
+
+    @property
+    def num_agents(self) -> int:
+        """N."""
+        ...
+
+    @property
+    def start_positions(self) -> np.ndarray:
+        """``(N, 2)`` metres."""
+        ...
+
+    @property
+    def start_yaws(self) -> np.ndarray:
+        """``(N,)`` radians."""
+        ...
+
+    @property
+    def agent_goals(self) -> np.ndarray:
+        """``(N, 2)`` each agent's goal position."""
+        ...
+
+    @property
+    def agent_goal_yaws(self) -> np.ndarray:
+        """``(N,)`` each agent's goal view direction."""
+        ...
 
 
 @dataclass(frozen=True)
-class StepOutcome:
-    """What one step did, per agent: all arrays ``(E, N)``.
+class Motion:
+    """What one step of driving did, per agent: arrays ``(E, N)``.
 
-    ``terminated``/``truncated`` are True only on the step where the agent finished
-    (Gymnasium semantics: terminated = reached the goal, truncated = hit ``T``).
+    Attributes:
+        moving: The agent was running and drove this step.
+        collided: It touched the scene or another robot (only where ``moving``).
+        prev_distance: Geodesic distance to its goal before the step.
     """
 
-    reward: np.ndarray
+    moving: np.ndarray
     collided: np.ndarray
-    terminated: np.ndarray
-    truncated: np.ndarray
-
-    @property
-    def any_finished(self) -> np.ndarray:
-        """``(E,)`` bool: some agent of the env finished on this step."""
-        return (self.terminated | self.truncated).any(axis=1)
+    prev_distance: np.ndarray
 
 
 class World:
@@ -48,11 +79,11 @@ class World:
     ``start_position``/``start_yaw`` (odometry frame).
     """
 
-    def __init__(self, scene: Scene, num_envs: int, num_agents: int, task: TaskSpec,
+    def __init__(self, scene: Scene, num_envs: int, num_agents: int,
                  params: AgentParams | None = None) -> None:
         if num_envs < 1 or num_agents < 1:
             raise ValueError(f"need at least one env and one agent, got {num_envs}×{num_agents}")
-        self.scene, self.task = scene, task
+        self.scene = scene
         self.params = params or AgentParams()
         e, n = num_envs, num_agents
         self.num_envs, self.num_agents = e, n
@@ -69,10 +100,9 @@ class World:
         self.collisions = np.zeros((e, n), dtype=np.int64)
         self.start_distance = np.zeros((e, n))
         self.distance = np.zeros((e, n))
-        self.episodes: list[Episode | None] = [None] * e
 
     # ------------------------------------------------------------------ reset
-    def reset_envs(self, envs: Sequence[int], episodes: Sequence[Episode]) -> None:
+    def reset_envs(self, envs: Sequence[int], episodes: Sequence[Start]) -> None:
         """Start ``episodes[i]`` in env ``envs[i]``.
 
         Raises:
@@ -94,13 +124,12 @@ class World:
             self.goal[e], self.goal_yaw[e] = ep.agent_goals, ep.agent_goal_yaws
             self.running[e], self.success[e] = True, False
             self.steps[e], self.path_length[e], self.collisions[e] = 0, 0.0, 0
-            self.episodes[e] = ep
             d = self._distances(e)
             self.start_distance[e], self.distance[e] = d, d
 
     # ------------------------------------------------------------------- step
-    def step(self, action: np.ndarray) -> StepOutcome:
-        """Drive every running agent for one action; update bookkeeping.
+    def step(self, action: np.ndarray) -> Motion:
+        """Drive every running agent for one action; update bookkeeping and distances.
 
         Args:
             action: ``(E, N, 2)`` float; clipped to ``[-1, 1]``.
@@ -119,12 +148,12 @@ class World:
         prev = self.distance.copy()
         for e in range(self.num_envs):
             self.distance[e] = self._distances(e)
-        reward = step_reward(prev, self.distance, collided, moving, self.task)
-        terminated = moving & succeeded(self.distance, self.task)
-        truncated = moving & ~terminated & (self.steps >= self.task.max_steps)
+        return Motion(moving, collided, prev)
+
+    def finish(self, terminated: np.ndarray, truncated: np.ndarray) -> None:
+        """Stop the agents that finished this step (``(E, N)`` bool each)."""
         self.success |= terminated
         self.running &= ~(terminated | truncated)
-        return StepOutcome(reward, collided, terminated, truncated)
 
     def _distances(self, e: int) -> np.ndarray:
         out = np.empty(self.num_agents)

@@ -9,10 +9,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
 from collavn.errors import CollavnError
+from collavn.simulation.world import World
 
 
 @dataclass(frozen=True)
@@ -26,7 +28,8 @@ class TaskSpec:
         max_steps: Episode length ``T``; agents still running then are truncated.
         progress_weight: Reward per metre of geodesic progress.
         collision_penalty: Subtracted on every step with a collision.
-        gamma: Discount factor used by learners.
+
+    The discount γ is the learner's (``PPOConfig.gamma``), not the task's.
     """
 
     name: str
@@ -35,8 +38,10 @@ class TaskSpec:
     max_steps: int = 80
     progress_weight: float = 1.0
     collision_penalty: float = 0.05
-    gamma: float = 0.99
 
+
+#: A task setting's name (the keys of :data:`TASKS`).
+TaskName = Literal["commongoal", "specificgoal", "adhocoop"]
 
 TASKS: dict[str, TaskSpec] = {
     "commongoal": TaskSpec("commongoal", shared_goal=True),
@@ -67,3 +72,33 @@ def step_reward(prev_distance: np.ndarray, distance: np.ndarray, collided: np.nd
 def succeeded(distance: np.ndarray, task: TaskSpec) -> np.ndarray:
     """``(E, N)`` bool: geodesic distance to the goal within the success radius."""
     return distance <= task.success_distance
+
+
+@dataclass(frozen=True)
+class StepOutcome:
+    """What one step did, per agent: all arrays ``(E, N)``.
+
+    ``terminated``/``truncated`` are True only on the step where the agent finished
+    (Gymnasium semantics: terminated = reached the goal, truncated = hit ``T``).
+    """
+
+    reward: np.ndarray
+    collided: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+
+    @property
+    def any_finished(self) -> np.ndarray:
+        """``(E,)`` bool: some agent of the env finished on this step."""
+        return (self.terminated | self.truncated).any(axis=1)
+
+
+def step_world(world: World, action: np.ndarray, task: TaskSpec) -> StepOutcome:
+    """Drive ``world`` one step with ``(E, N, 2)`` actions and apply ``task``'s rules."""
+    motion = world.step(action)
+    reward = step_reward(motion.prev_distance, world.distance, motion.collided,
+                         motion.moving, task)
+    terminated = motion.moving & succeeded(world.distance, task)
+    truncated = motion.moving & ~terminated & (world.steps >= task.max_steps)
+    world.finish(terminated, truncated)
+    return StepOutcome(reward, motion.collided, terminated, truncated)

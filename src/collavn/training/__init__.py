@@ -1,7 +1,7 @@
 """Training: rollout storage + GAE, decentralized PPO, imitation, map FIFO, distributed runs.
 
 The loop is :func:`collavn.training.trainer.train` (collect → GAE → PPO epochs → log →
-checkpoint); ``collavn train`` is :class:`collavn.training.command.Train`::
+checkpoint); ``collavn train`` (:mod:`collavn.cli.train`) sets every field of its config tree::
 
     collavn train --method ours --task commongoal --agents 2 --preset cpu --out runs/ours
     collavn train --method il --preset cpu --time-budget-minutes 50 --out runs/il
@@ -11,6 +11,7 @@ checkpoint); ``collavn train`` is :class:`collavn.training.command.Train`::
 Methods: ``ours`` (memory communication), ``no-mem`` (handshake), ``no-com`` (IPPO) —
 all decentralized PPO with per-agent critics — and ``il`` (one agent clones the
 shortest-path oracle; copies of it act at test time). ``random`` lives in
-:mod:`collavn.evaluation.policies`. Presets: ``paper`` keeps the paper's values;
-``cpu`` departs from them as listed in :data:`collavn.training.config.CPU_DEVIATIONS`.
+:mod:`collavn.policies`. Presets: ``paper`` keeps the paper's values;
+``cpu`` departs from them as :func:`collavn.training.config.preset_deviations`
+computes, each with its reason.
 """

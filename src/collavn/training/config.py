@@ -1,58 +1,69 @@
-"""Training configuration: one resolved :class:`TrainConfig` per run, with two presets.
+"""Training configuration: one tree, each value stated once, two presets.
 
-``TrainConfig.preset("paper", ...)`` keeps the paper's values (ResNet18, 3×128×512
-panoramas, 25 envs, 5 mini-batches, 8 epochs, Adam lr 1e-5, entropy 0.001, value coef
-0.5, γ 0.99, a map FIFO of 5,000 samples with 10 updates of batch 64 per env step).
-``TrainConfig.preset("cpu", ...)`` is sized to learn something on a 2-core CPU; its
-deviations from the paper are listed in :data:`CPU_DEVIATIONS` and in the docs.
+``TrainConfig = {method, env, model, ppo, mapping, imitation, run}``:
+
+* ``env`` — :class:`~collavn.envs.config.EnvConfig`: task, agents, image sizes,
+  difficulty of the on-the-fly episodes, renderer threads. The image sizes are stated
+  here only; the model's input shapes and its communication variant are *derived*
+  (from ``env`` and ``method``) when the config is built, and are not flags.
+* ``model``, ``ppo``, ``mapping``, ``imitation`` — the learner.
+* ``run`` — seeds, envs, scenes, budget, checkpoints, device, output directory.
+
+:data:`PRESETS` holds ``paper`` (the paper's values: ResNet18, 3×128×512 panoramas, 25
+envs, 5 mini-batches, 8 epochs, Adam lr 1e-5, entropy 0.001, value coef 0.5, γ 0.99, a
+map FIFO of 5,000 samples with 10 updates of batch 64 per env step) and ``cpu`` (sized to
+learn something on a 2-core CPU). :func:`preset_deviations` computes how ``cpu`` departs
+from ``paper`` and :data:`CPU_REASONS` says why, field by field.
 
 The resolved config is written as ``config.json`` beside every run and inside every
-checkpoint; a checkpoint is only resumed by a run whose *identity* (every field except
-:data:`RUN_CONTROL_FIELDS`) is equal.
+checkpoint (:func:`collavn.configs.to_dict`; :meth:`TrainConfig.from_dict` refuses
+unknown and missing keys). A checkpoint is only resumed by a run whose *identity* (every
+field except :data:`RUN_CONTROL_FIELDS`) is equal.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import json
-from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Literal
+from dataclasses import dataclass, field, replace
+from typing import Annotated, Any, Literal
 
-from collavn.errors import CollavnError
-from collavn.models.config import CommConfig, MapConfig, MatchConfig, ModelConfig
+import tyro
+
+from collavn import configs
+from collavn.envs.config import EnvConfig
+from collavn.errors import ConfigError
+from collavn.models.config import CommVariant, ModelConfig
 
 Method = Literal["ours", "no-mem", "no-com", "il"]
-Preset = Literal["paper", "cpu"]
+PresetName = Literal["paper", "cpu"]
 
-#: Communication variant of each learning method.
-METHOD_COMM: dict[str, str] = {"ours": "memory", "no-mem": "handshake", "no-com": "none",
-                               "il": "none"}
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """What a learning method is made of.
+
+    Attributes:
+        comm: Communication variant of its model.
+        imitation: Learns by imitating the shortest-path oracle (else decentralized PPO).
+        description: One line for ``--help`` and reports.
+    """
+
+    comm: CommVariant
+    imitation: bool
+    description: str
+
+
+#: The learning methods of the paper's table.
+METHODS: dict[str, MethodSpec] = {
+    "ours": MethodSpec("memory", False, "memory-augmented handshake communication, PPO"),
+    "no-mem": MethodSpec("handshake", False, "handshake communication without memory, PPO"),
+    "no-com": MethodSpec("none", False, "no communication (IPPO)"),
+    "il": MethodSpec("none", True, "imitation of the shortest-path oracle (DAgger / BC)"),
+}
 
 #: Fields that steer a run without changing its results (allowed to differ on resume).
-RUN_CONTROL_FIELDS = ("out", "total_steps", "time_budget_minutes", "progress", "device",
-                      "log_interval")
-
-#: How the ``cpu`` preset departs from the paper, and why.
-CPU_DEVIATIONS: dict[str, str] = {
-    "model": "small CNN, 256-d embeddings, 3×32×128 panoramas, 32×32 goals, 96×96 map at "
-             "20 cm (ModelConfig.cpu) — ResNet18 at 512×128 runs ~30 images/s on 2 cores",
-    "goal_match": "goal matching on (collavn.models.matching): the goal image is compared "
-                  "with the panorama at every azimuth and 3 scales, instead of leaving a "
-                  "GRU to learn the comparison from two pooled embeddings",
-    "odometry": "the last step's pose change is a direct policy input (odometry_input), "
-                "so a robot pushing against a wall can tell that it is not moving",
-    "critic": "the critic also sees the map and goal vectors (critic_full_input); the "
-              "paper's V sees only (O, ω), which cannot tell how far the goal is",
-    "num_envs": "8 envs (not 25) to fit 2 cores; they move on to the next 8 training "
-                "scenes at every checkpoint sync point",
-    "lr": "1e-3 (not 1e-5): 1e-5 (and 3e-4: approx-KL < 5e-4 per update) moves the "
-          "policy too little in the ~1e5 agent-steps an hour gives",
-    "update_epochs": "4 epochs × 2 mini-batches (not 8 × 5): the update dominates CPU time",
-    "map": "2 map updates of batch 32 once per rollout (not 10 × 64 every env step)",
-    "difficulty": "easy episodes on the fly (the paper trains on its fixed mixed dataset)",
-    "il": "DAgger on by default (β = 0.95^update, ≥ 0.1) over the last 8 rollouts; the "
-          "paper's IL is plain BC",
-}
+RUN_CONTROL_FIELDS = ("run.out", "run.resume", "run.total_steps", "run.time_budget_minutes",
+                      "run.progress", "run.device", "run.log_interval", "run.torch_threads",
+                      "env.render_threads")
 
 
 @dataclass(frozen=True)
@@ -128,129 +139,219 @@ class ImitationConfig:
 
 
 @dataclass(frozen=True)
-class TrainConfig:
-    """Everything a training run depends on (the resolved preset plus overrides)."""
+class RunConfig:
+    """How a run is executed: seeds, envs, scenes, budget, checkpoints, output."""
 
-    method: Method = "ours"
-    """``ours`` (memory communication), ``no-mem`` (handshake), ``no-com`` (IPPO), ``il``."""
-    task: str = "commongoal"
-    """``commongoal``, ``specificgoal`` or ``adhocoop``."""
-    agents: int = 2
-    """Agents per env during training."""
-    difficulty: str = "mixed"
-    """Difficulty of the on-the-fly training episodes (easy, medium, hard, mixed)."""
-    preset: Preset = "paper"
-    """The preset this config was resolved from (informational)."""
+    out: str = "runs/train"
+    """Run directory: ``config.json``, ``checkpoint.pt``, TensorBoard events."""
+    resume: bool = False
+    """Continue from ``OUT/checkpoint.pt`` (refused if it was made by another config)."""
+    seed: int = 0
+    """Base seed; process ``r`` uses ``seed + 1000·r`` for its envs and sampling."""
     num_envs: int = 25
     """Envs per process; env ``i`` lives in scene ``i mod #scenes`` of the process."""
     scenes: tuple[str, ...] = ()
     """Scene specs to train on; empty = the 25 procedural ``train`` scenes."""
-    panorama_width: int = 512
-    """Panorama width in pixels."""
-    panorama_height: int = 128
-    """Panorama height in pixels."""
-    goal_size: int = 128
-    """Goal image side."""
-    render_threads: int = 2
-    """Renderer threads per process."""
+    total_steps: int = 10_000_000
+    """Stop after this many agent-steps (summed over processes)."""
+    time_budget_minutes: float = 0.0
+    """Stop (with a checkpoint) after this wall-clock time; 0 = no limit."""
+    checkpoint_interval: int = 10
+    """Updates between checkpoints; checkpoints are sync points (envs reset, FIFO cleared)."""
+    log_interval: int = 1
+    """Write TensorBoard scalars every this many updates."""
+    device: str = "cpu"
+    """Torch device (``cpu``, ``cuda``; under torchrun ``cuda`` means ``cuda:LOCAL_RANK``)."""
     torch_threads: int = 0
     """``torch.set_num_threads`` per process (0 = leave torch's default)."""
+    progress: bool = True
+    """Show a progress bar (rank 0)."""
+    init_from: str = ""
+    """Start from the model weights of this checkpoint (e.g. an ``il`` run's, to
+    fine-tune it with PPO); its model config must match. Optimizers start fresh."""
+
+    def __post_init__(self) -> None:
+        if self.num_envs < 1 or self.checkpoint_interval < 1 or self.log_interval < 1:
+            raise ConfigError("num_envs, checkpoint_interval and log_interval must be ≥ 1")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything a training run depends on (a preset plus overrides)."""
+
+    method: Method = "ours"
+    """``ours`` (memory communication), ``no-mem`` (handshake), ``no-com`` (IPPO), ``il``."""
+    preset: Annotated[PresetName, tyro.conf.Suppress] = "paper"
+    """The preset this config started from (informational)."""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """What the agents sense, the task and the on-the-fly episodes."""
     model: ModelConfig = field(default_factory=ModelConfig.paper)
-    """The agent model."""
+    """The agent model (input shapes and communication variant derived from env, method)."""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     """PPO settings (also the rollout length for ``il``)."""
     mapping: MapTrainConfig = field(default_factory=MapTrainConfig)
     """Map module training."""
     imitation: ImitationConfig = field(default_factory=ImitationConfig)
     """Imitation settings (method ``il``)."""
-    seed: int = 0
-    """Base seed; process ``r`` uses ``seed + 1000·r`` for its envs and sampling."""
-    checkpoint_interval: int = 10
-    """Updates between checkpoints; checkpoints are sync points (envs reset, FIFO cleared)."""
-    out: str = "runs/train"
-    """Run directory: ``config.json``, ``checkpoint.pt``, TensorBoard events."""
-    total_steps: int = 10_000_000
-    """Stop after this many agent-steps (summed over processes)."""
-    time_budget_minutes: float = 0.0
-    """Stop (with a checkpoint) after this wall-clock time; 0 = no limit."""
-    device: str = "cpu"
-    """Torch device (``cpu``, ``cuda``; under torchrun ``cuda`` means ``cuda:LOCAL_RANK``)."""
-    progress: bool = True
-    """Show a progress bar (rank 0)."""
-    log_interval: int = 1
-    """Write TensorBoard scalars every this many updates."""
-    init_from: str = ""
-    """Start from the model weights of this checkpoint (e.g. an ``il`` run's, to
-    fine-tune it with PPO); its model config must match. Optimizers start fresh."""
+    run: Annotated[RunConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=RunConfig)
+    """Seeds, envs, budget, checkpoints, output (flags without a prefix: ``--out``)."""
 
     def __post_init__(self) -> None:
-        if self.method not in METHOD_COMM:
-            raise CollavnError(f"unknown method {self.method!r}; expected one of "
-                               f"{', '.join(METHOD_COMM)}")
-        if self.num_envs < 1 or self.agents < 1 or self.ppo.rollout_steps < 1:
-            raise CollavnError("num_envs, agents and rollout_steps must be ≥ 1")
+        if self.method not in METHODS:
+            raise ConfigError(f"unknown method {self.method!r}; expected one of "
+                              f"{', '.join(METHODS)}")
+        if self.ppo.rollout_steps < 1:
+            raise ConfigError(f"rollout_steps must be ≥ 1, got {self.ppo.rollout_steps}")
         if self.ppo.critic_warmup < 0:
-            raise CollavnError(f"critic_warmup must be ≥ 0, got {self.ppo.critic_warmup}")
+            raise ConfigError(f"critic_warmup must be ≥ 0, got {self.ppo.critic_warmup}")
+        # Derived, never stated twice: the model's inputs follow the env, its
+        # communication the method.
+        model = replace(self.model,
+                        panorama_shape=(3, self.env.panorama_height, self.env.panorama_width),
+                        goal_shape=(3, self.env.goal_size, self.env.goal_size),
+                        comm=replace(self.model.comm, variant=self.method_spec.comm))
+        object.__setattr__(self, "model", model)
 
-    @classmethod
-    def preset_config(cls, name: str, **overrides: Any) -> TrainConfig:
-        """The ``paper`` or ``cpu`` preset with ``overrides`` applied (top-level fields)."""
-        if name == "paper":
-            base = cls(preset="paper")
-        elif name == "cpu":
-            base = cls(
-                preset="cpu", difficulty="easy", num_envs=8, panorama_width=128,
-                panorama_height=32, goal_size=32, render_threads=1, checkpoint_interval=20,
-                model=ModelConfig.cpu(map=replace(ModelConfig.cpu().map, hidden=128)),
-                ppo=PPOConfig(rollout_steps=32, num_minibatches=2, update_epochs=4, lr=1e-3),
-                mapping=MapTrainConfig(updates=2, batch_size=32, every=32, lr=3e-4),
-                imitation=ImitationConfig(dagger=True, buffer_rollouts=8, epochs=1))
-        else:
-            raise CollavnError(f"unknown preset {name!r}; expected paper or cpu")
-        return replace(base, **overrides).resolved()
+    @property
+    def method_spec(self) -> MethodSpec:
+        """What ``method`` is made of."""
+        return METHODS[self.method]
 
-    def resolved(self) -> TrainConfig:
-        """Make the model agree with the run: comm variant from ``method``, image shapes."""
-        comm = replace(self.model.comm, variant=METHOD_COMM[self.method])  # type: ignore[arg-type]
-        model = replace(self.model, comm=comm,
-                        panorama_shape=(3, self.panorama_height, self.panorama_width),
-                        goal_shape=(3, self.goal_size, self.goal_size))
-        return replace(self, model=model)
+    @property
+    def learning_rate(self) -> float:
+        """The policy optimizer's learning rate (imitation's for ``il``, else PPO's)."""
+        return self.imitation.lr if self.method_spec.imitation else self.ppo.lr
+
+    def with_run(self, **changes: Any) -> TrainConfig:
+        """A copy with fields of ``run`` replaced (``cfg.with_run(out="x", resume=True)``)."""
+        return replace(self, run=replace(self.run, **changes))
+
+    def with_env(self, **changes: Any) -> TrainConfig:
+        """A copy with fields of ``env`` replaced (the model's shapes follow)."""
+        return replace(self, env=replace(self.env, **changes))
 
     def identity(self) -> dict[str, Any]:
         """The fields that must match to resume a checkpoint."""
         d = self.to_dict()
-        for name in RUN_CONTROL_FIELDS:
-            d.pop(name)
+        for path in RUN_CONTROL_FIELDS:
+            section, name = path.split(".")
+            d[section].pop(name)
         return d
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-compatible dict (tuples become lists)."""
-        return json.loads(json.dumps(asdict(self)))
+        """JSON-compatible dict (tuples become lists); :meth:`from_dict` inverts it."""
+        return configs.to_dict(self)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
-        """Inverse of :meth:`to_dict`."""
-        d = dict(d)
-        d["scenes"] = tuple(d.get("scenes", ()))
-        d["model"] = model_config_from_dict(d["model"])
-        d["ppo"] = PPOConfig(**d["ppo"])
-        d["mapping"] = MapTrainConfig(**d["mapping"])
-        d["imitation"] = ImitationConfig(**d["imitation"])
-        return cls(**d)
+        """Inverse of :meth:`to_dict`; unknown or missing keys are errors."""
+        return configs.from_dict(cls, d)
 
 
-def model_config_from_dict(d: dict[str, Any]) -> ModelConfig:
-    """Rebuild a :class:`ModelConfig` from ``asdict`` output (lists → tuples)."""
-    d = dict(d)
-    d["map"] = MapConfig(**d["map"])
-    d["comm"] = CommConfig(**d["comm"])
-    match = dict(d.get("goal_match", {}))  # absent in runs saved before it existed: off
-    if "scales" in match:
-        match["scales"] = tuple(match["scales"])
-    d["goal_match"] = MatchConfig(**match)
-    for name in ("panorama_shape", "goal_shape"):
-        d[name] = tuple(d[name])
-    known = {f.name for f in dataclasses.fields(ModelConfig)}
-    return ModelConfig(**{k: v for k, v in d.items() if k in known})
+def _paper() -> TrainConfig:
+    return TrainConfig(preset="paper")
 
+
+def _cpu() -> TrainConfig:
+    model = ModelConfig.cpu()
+    return TrainConfig(
+        preset="cpu",
+        env=EnvConfig(panorama_width=128, panorama_height=32, goal_size=32,
+                      difficulty="easy", render_threads=1),
+        model=replace(model, map=replace(model.map, hidden=128)),
+        ppo=PPOConfig(rollout_steps=32, num_minibatches=2, update_epochs=4, lr=1e-3),
+        mapping=MapTrainConfig(updates=2, batch_size=32, every=32, lr=3e-4),
+        imitation=ImitationConfig(dagger=True, buffer_rollouts=8, epochs=1),
+        run=RunConfig(num_envs=8, checkpoint_interval=20))
+
+
+#: The presets: name → (description, config).
+PRESETS: dict[str, tuple[str, TrainConfig]] = {
+    "paper": ("The paper's sizes and hyper-parameters (ResNet18, 512×128, 25 envs); "
+              "for GPUs.", _paper()),
+    "cpu": ("Sized to learn on a 2-core laptop CPU (small CNN, 128×32, 8 envs).", _cpu()),
+}
+
+
+def preset_config(name: str, **overrides: Any) -> TrainConfig:
+    """The preset ``name`` with top-level fields replaced (``method=``, ``run=``, …)."""
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset {name!r}; expected one of {', '.join(PRESETS)}")
+    return replace(PRESETS[name][1], **overrides)
+
+
+#: Why the ``cpu`` preset departs from ``paper``: a dotted config path (a leaf, or a
+#: section covering every leaf below it) → one line. :func:`preset_deviations` pairs
+#: every differing field with its reason; a test fails if one has none.
+CPU_REASONS: dict[str, str] = {
+    "env.panorama_width": "3×32×128 panoramas: at 512×128 the encoder, not the renderer, "
+                          "bounds CPU training (ResNet18 runs ~30 images/s on 2 cores)",
+    "env.panorama_height": "see env.panorama_width",
+    "env.goal_size": "32×32 goal images, to match the small panoramas",
+    "env.difficulty": "easy episodes on the fly (the paper trains on its fixed mixed "
+                      "dataset)",
+    "env.render_threads": "one renderer thread: two runs can share the 2 cores",
+    "model.panorama_shape": "derived from env.panorama_*",
+    "model.goal_shape": "derived from env.goal_size",
+    "model.encoder": "a small CNN instead of ResNet18 (forward+backward cost)",
+    "model.embed_dim": "256-d embeddings (not 1024) for the small CNN",
+    "model.hidden_size": "256-unit actor GRU (not 512): fewer parameters to learn on CPU",
+    "model.critic_hidden_size": "128-unit critic GRU (not 512)",
+    "model.critic_full_input": "the critic also sees the map and goal vectors; the paper's "
+                               "V sees only (O, ω), which cannot tell how far the goal is",
+    "model.odometry_input": "the last step's pose change is a direct policy input, so a "
+                            "robot pushing against a wall can tell that it is not moving",
+    "model.goal_match": "goal matching (collavn.models.matching): the goal image compared "
+                        "with the panorama at every azimuth and 3 scales, instead of a GRU "
+                        "learning the comparison from two pooled embeddings",
+    "model.map.size": "a 96×96 map at 20 cm (19.2 m) instead of 384×384 at 10 cm",
+    "model.map.resolution": "see model.map.size",
+    "model.map.local_size": "32-cell local patches at 20 cm (6.4 m, as the paper's 64 at "
+                            "10 cm)",
+    "model.map.encoder_size": "the map encoder sees a 32×32 window",
+    "model.map.feature_channels": "32 visual-feature channels (not 256) on the coarse grid",
+    "model.map.feature_size": "a 6×6 feature grid over 19.2 m (3.2 m cells, the paper's "
+                              "3 m grid)",
+    "model.map.hidden": "128-unit predictor bottleneck (not 512)",
+    "model.map.embed_dim": "128-d map vector (not 256)",
+    "model.comm.query_dim": "64-d queries and keys, 256-d values (not 256/256/2048), in "
+                            "proportion to the 256-d embeddings",
+    "model.comm.key_dim": "see model.comm.query_dim",
+    "model.comm.value_dim": "see model.comm.query_dim",
+    "run.num_envs": "8 envs (not 25) to fit 2 cores; they move on to the next 8 training "
+                    "scenes at every checkpoint sync point",
+    "run.checkpoint_interval": "20 updates between sync points (shorter rollouts)",
+    "ppo.rollout_steps": "32-step rollouts (not 80): more updates per hour of CPU",
+    "ppo.lr": "1e-3 (not 1e-5): 1e-5 (and 3e-4: approx-KL < 5e-4 per update) moves the "
+              "policy too little in the ~1e5 agent-steps an hour gives",
+    "ppo.update_epochs": "4 epochs × 2 mini-batches (not 8 × 5): the update dominates CPU "
+                        "time",
+    "ppo.num_minibatches": "see ppo.update_epochs",
+    "mapping.updates": "2 map updates of batch 32 once per rollout (not 10 × 64 every env "
+                       "step)",
+    "mapping.batch_size": "see mapping.updates",
+    "mapping.every": "see mapping.updates",
+    "mapping.lr": "3e-4 (not 1e-4): far fewer map updates per hour",
+    "imitation.dagger": "DAgger on (β = 0.95^update, ≥ 0.1) over the last 8 rollouts; the "
+                        "paper's IL is plain BC",
+    "imitation.buffer_rollouts": "see imitation.dagger",
+    "imitation.epochs": "one pass over the aggregated rollouts per update",
+}
+
+
+def preset_deviations(a: str = "paper", b: str = "cpu",
+                      reasons: dict[str, str] | None = None
+                      ) -> dict[str, tuple[Any, Any, str | None]]:
+    """``{path: (value in a, value in b, reason or None)}`` for every differing leaf.
+
+    The reason is that of the longest key of ``reasons`` (default :data:`CPU_REASONS`)
+    equal to the path or a dotted prefix of it.
+    """
+    reasons = CPU_REASONS if reasons is None else reasons
+    diffs = configs.differences(PRESETS[a][1].to_dict(), PRESETS[b][1].to_dict())
+    diffs.pop("preset", None)
+    out: dict[str, tuple[Any, Any, str | None]] = {}
+    for path, (va, vb) in diffs.items():
+        keys = [k for k in reasons if path == k or path.startswith(k + ".")]
+        out[path] = (va, vb, reasons[max(keys, key=len)] if keys else None)
+    return out

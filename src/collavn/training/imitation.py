@@ -22,8 +22,8 @@ import torch
 from torch import Tensor
 
 from collavn.errors import CollavnError
-from collavn.evaluation.policies import Policy
 from collavn.models.policy import ActorCritic
+from collavn.policies.base import Policy
 from collavn.training.config import ImitationConfig
 from collavn.training.ppo import masked_mean, minibatch_envs
 from collavn.training.rollout import Rollout

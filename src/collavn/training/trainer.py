@@ -3,7 +3,7 @@
 :func:`train` reads in the algorithm's order; each step is a named function below.
 Method ``il`` replaces "GAE + PPO" by a supervised step on the oracle's actions
 (:mod:`collavn.training.imitation`); the map module learns alongside from its FIFO
-(:mod:`collavn.training.mapping`) during collection.
+(:mod:`collavn.training.map_training`) during collection.
 
 Reproducibility: every ``checkpoint_interval`` updates is a *sync point* — all seeds
 are re-derived from ``(seed, rank, update)``, every env starts a new episode, the
@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,18 +27,15 @@ from torch import nn
 from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv
 from collavn.errors import CheckpointError
-from collavn.evaluation.policies import OraclePolicy
 from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
+from collavn.policies import OraclePolicy
+from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
+from collavn.policies.checkpoint import load_checkpoint, save_checkpoint
 from collavn.scenes import Scene, load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.training import distributed
-from collavn.training.checkpoint import (
-    check_config,
-    differences,
-    load_checkpoint,
-    save_checkpoint,
-)
+from collavn.training.checkpoint import check_config, differences, saved_config
 from collavn.training.config import TrainConfig
 from collavn.training.imitation import (
     expert_actions,
@@ -46,15 +43,9 @@ from collavn.training.imitation import (
     imitation_update,
     mix_actions,
 )
-from collavn.training.mapping import MapTrainer, policy_parameters
+from collavn.training.map_training import MapTrainer, policy_parameters
 from collavn.training.ppo import ppo_update
-from collavn.training.rollout import (
-    Rollout,
-    compute_gae,
-    episode_start,
-    obs_to_torch,
-    policy_keys,
-)
+from collavn.training.rollout import Rollout, compute_gae
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -88,18 +79,19 @@ class Run:
     def steps_per_update(self) -> int:
         """Agent-steps per update over all processes."""
         c = self.cfg
-        return c.ppo.rollout_steps * c.num_envs * c.agents * self.info.world_size
+        return c.ppo.rollout_steps * c.run.num_envs * c.env.num_agents * self.info.world_size
 
 
 def env_config(cfg: TrainConfig) -> EnvConfig:
-    """Sensors the run needs: model image sizes, depth/gt maps for the map, oracle info."""
+    """``cfg.env`` plus what the run needs: depth and gt maps for the map, oracle info.
+
+    ``depth``, ``gt_map``, ``gt_map_size`` and ``privileged`` are set here, from the
+    model and the method, whatever ``cfg.env`` says.
+    """
     m = cfg.model.map
-    return EnvConfig(task=cfg.task, num_agents=cfg.agents, panorama_width=cfg.panorama_width,
-                     panorama_height=cfg.panorama_height, goal_size=cfg.goal_size,
-                     depth=m.use_depth, gt_map=cfg.mapping.enabled,
-                     gt_map_size=round(m.local_size * m.resolution / 0.1),
-                     difficulty=cfg.difficulty, render_threads=cfg.render_threads,
-                     privileged=cfg.method == "il")
+    return replace(cfg.env, depth=m.use_depth, gt_map=cfg.mapping.enabled,
+                   gt_map_size=round(m.local_size * m.resolution / 0.1),
+                   privileged=cfg.method_spec.imitation)
 
 
 def set_train_mode(model: nn.Module) -> None:
@@ -116,21 +108,20 @@ def set_train_mode(model: nn.Module) -> None:
 
 def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device) -> Run:
     """Scenes, envs, model (same initial weights on every rank), optimizers."""
-    specs = list(cfg.scenes) or scene_specs("train")
+    specs = list(cfg.run.scenes) or scene_specs("train")
     scenes = [load_scene(s) for s in distributed.shard(specs, info)]
-    env = VectorEnv(scene_window(scenes, cfg.num_envs, 0), cfg.num_envs, env_config(cfg),
-                    seed=info.seed(cfg.seed))
-    torch.manual_seed(cfg.seed)
+    env = VectorEnv(scene_window(scenes, cfg.run.num_envs, 0), cfg.run.num_envs,
+                    env_config(cfg), seed=info.seed(cfg.run.seed))
+    torch.manual_seed(cfg.run.seed)
     model = ActorCritic(cfg.model, device=device)
-    if cfg.init_from:
-        initialise_from(model, cfg, cfg.init_from)
+    if cfg.run.init_from:
+        initialise_from(model, cfg, cfg.run.init_from)
     distributed.broadcast_parameters(model)
     set_train_mode(model)
-    lr = cfg.imitation.lr if cfg.method == "il" else cfg.ppo.lr
-    optimizer = torch.optim.Adam(policy_parameters(model), lr=lr, eps=1e-5)
-    maps = MapTrainer(model, cfg.mapping, cfg.model.map.use_depth, info.seed(cfg.seed),
+    optimizer = torch.optim.Adam(policy_parameters(model), lr=cfg.learning_rate, eps=1e-5)
+    maps = MapTrainer(model, cfg.mapping, cfg.model.map.use_depth, info.seed(cfg.run.seed),
                       distributed.average_gradients if info.enabled else None)
-    expert = OraclePolicy(env.scenes) if cfg.method == "il" else None
+    expert = OraclePolicy(env.scenes) if cfg.method_spec.imitation else None
     return Run(cfg, info, device, env, model, optimizer, maps, expert, scenes=scenes)
 
 
@@ -148,7 +139,7 @@ def scene_window(scenes: list[Scene], num_envs: int, k: int) -> list[Scene]:
 def initialise_from(model: ActorCritic, cfg: TrainConfig, path: str) -> None:
     """Load a checkpoint's model weights into ``model``; refuse another model config."""
     payload = load_checkpoint(path)
-    saved = TrainConfig.from_dict(payload["config"]).to_dict()["model"]
+    saved = saved_config(payload, path).to_dict()["model"]
     diffs = differences(saved, cfg.to_dict()["model"], "model.")
     if diffs:
         raise CheckpointError(f"--init-from {path}: its model config differs from this "
@@ -158,15 +149,15 @@ def initialise_from(model: ActorCritic, cfg: TrainConfig, path: str) -> None:
 
 def sync_point(run: Run) -> None:
     """Re-derive every seed from (seed, rank, update) and start fresh episodes."""
-    seed = run.info.seed(run.cfg.seed) + 7919 * run.iteration
+    seed = run.info.seed(run.cfg.run.seed) + 7919 * run.iteration
     torch.manual_seed(seed)
     run.generator.manual_seed(seed)
     run.rng = np.random.default_rng(seed)
     run.maps.reseed(seed)
-    window = scene_window(run.scenes, run.cfg.num_envs,
-                          run.iteration // run.cfg.checkpoint_interval)
+    window = scene_window(run.scenes, run.cfg.run.num_envs,
+                          run.iteration // run.cfg.run.checkpoint_interval)
     if [s.name for s in window] != [s.name for s in run.env.scenes]:  # next scenes
-        run.env = VectorEnv(window, run.cfg.num_envs, env_config(run.cfg), seed=seed)
+        run.env = VectorEnv(window, run.cfg.run.num_envs, env_config(run.cfg), seed=seed)
         if run.expert is not None:
             run.expert = OraclePolicy(run.env.scenes)
     run.obs, _ = run.env.reset(seed=seed)
@@ -234,7 +225,7 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
     cfg = run.cfg
     sync = ((lambda: distributed.average_gradients(policy_parameters(run.model)))
             if run.info.enabled else None)
-    if cfg.method == "il":
+    if cfg.method_spec.imitation:
         run.demos.append(rollout)
         loss = imitation_update(run.model, run.optimizer, list(run.demos), cfg.imitation,
                                 run.generator, cfg.ppo.max_grad_norm, sync)
@@ -293,9 +284,9 @@ def restore(run: Run, path: Path) -> None:
 def out_of_budget(run: Run) -> bool:
     """Total steps reached, or the wall-clock budget spent (rank 0 decides for all)."""
     cfg = run.cfg
-    done = run.agent_steps >= cfg.total_steps
-    if cfg.time_budget_minutes > 0:
-        done |= time.perf_counter() - run.started >= 60.0 * cfg.time_budget_minutes
+    done = run.agent_steps >= cfg.run.total_steps
+    if cfg.run.time_budget_minutes > 0:
+        done |= time.perf_counter() - run.started >= 60.0 * cfg.run.time_budget_minutes
     flag = distributed.all_reduce_mean([float(done) if run.info.is_main else 0.0],
                                        run.device)[0]
     return flag > 0
@@ -318,21 +309,21 @@ class TrainResult:
     checkpoint: Path | None
 
 
-def train(cfg: TrainConfig, resume: bool = False) -> TrainResult:
+def train(cfg: TrainConfig) -> TrainResult:
     """Train ``cfg.method`` until ``total_steps`` or the time budget; see the module doc."""
-    info, device = distributed.setup(cfg.device)
-    if cfg.torch_threads > 0:
-        torch.set_num_threads(cfg.torch_threads)
-    out = Path(cfg.out)
+    info, device = distributed.setup(cfg.run.device)
+    if cfg.run.torch_threads > 0:
+        torch.set_num_threads(cfg.run.torch_threads)
+    out = Path(cfg.run.out)
     try:
         run = build_run(cfg, info, device)
-        if resume and (out / CHECKPOINT).exists():
+        if cfg.run.resume and (out / CHECKPOINT).exists():
             restore(run, out / CHECKPOINT)
         logger = Logger(run, out) if info.is_main else None
         last: dict[str, float] = {}
         first = True
         while not out_of_budget(run):
-            if first or run.iteration % cfg.checkpoint_interval == 0:
+            if first or run.iteration % cfg.run.checkpoint_interval == 0:
                 sync_point(run)
                 first = False
             tick = time.perf_counter()
@@ -343,7 +334,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> TrainResult:
             last = summary(run, collected, losses, time.perf_counter() - tick)
             if logger is not None:
                 logger.log(run, last)
-                if run.iteration % cfg.checkpoint_interval == 0:
+                if run.iteration % cfg.run.checkpoint_interval == 0:
                     save_checkpoint(out / CHECKPOINT, checkpoint_payload(run))
         path = None
         if logger is not None:
@@ -369,10 +360,10 @@ class Logger:
         out.mkdir(parents=True, exist_ok=True)
         (out / "config.json").write_text(json.dumps(run.cfg.to_dict(), indent=2) + "\n")
         self.writer = SummaryWriter(str(out), purge_step=run.iteration or None)
-        self.interval = run.cfg.log_interval
-        self.progress = Progress(disable=not run.cfg.progress)
+        self.interval = run.cfg.run.log_interval
+        self.progress = Progress(disable=not run.cfg.run.progress)
         self.progress.start()
-        self.task = self.progress.add_task(f"{run.cfg.method}", total=run.cfg.total_steps,
+        self.task = self.progress.add_task(f"{run.cfg.method}", total=run.cfg.run.total_steps,
                                            completed=run.agent_steps)
 
     def log(self, run: Run, scalars: dict[str, float]) -> None:

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 
 from collavn.evaluation.runner import Trajectory
+from collavn.rendering.frames import AGENT_COLOURS, views_strip
 from collavn.scenes.scene import Scene
-from collavn.viz.frames import AGENT_COLOURS, views_strip
 from collavn.viz.topdown import draw_scene_map, nav_map_image
 
 START_COLOUR = "#1f5fbf"

@@ -15,9 +15,10 @@ from collavn.datasets.build import generate_dataset
 from collavn.datasets.generator import Preset
 from collavn.datasets.storage import Dataset
 from collavn.envs.config import EnvConfig
-from collavn.evaluation.command import draw_all, run_evaluation, write_results
+from collavn.evaluation.benchmark import EvalConfig, run_evaluation, write_results
 from collavn.metrics import metrics_table
 from collavn.scenes import load_scene
+from collavn.viz.animate import draw_all
 from collavn.viz.topdown import save_scene_map
 
 
@@ -52,8 +53,9 @@ class Demo:
                          goal_size=self.panorama_width // 4)
         records = {}
         for policy in ("oracle", "random"):
-            recs, trajs = run_evaluation(policy, dataset, base, num_envs=4, seed=self.seed,
-                                         keep_trajectories=3 * self.episodes)
+            cfg = EvalConfig(policy=policy, num_envs=4, seed=self.seed, env=base,
+                             keep_trajectories=3 * self.episodes)
+            recs, trajs = run_evaluation(cfg, dataset)
             write_results(self.out / policy, {policy: recs}, trajs)
             records[policy] = recs
             pictures = draw_all(trajs, self.out / policy, gifs=1 if policy == "oracle" else 0,

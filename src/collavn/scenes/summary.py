@@ -1,16 +1,11 @@
-"""``collavn scene info``: describe a scene and draw its map."""
+"""Facts about a scene as plain values: size, navigable area, components, geodesic span."""
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import numpy as np
-import tyro
 
-from collavn.scenes.loading import load_scene
 from collavn.scenes.scene import Scene
 
 
@@ -56,42 +51,3 @@ def largest_geodesic(scene: Scene) -> float:
         row, col = np.unravel_index(k, grid.shape)
         start = nav.cell_centers(np.asarray(row), np.asarray(col))
     return far
-
-
-@dataclass
-class SceneInfo:
-    """Describe a scene: triangles, bounds, navigable area, components, geodesic span."""
-
-    scene: Annotated[str, tyro.conf.Positional]
-    """``procedural:SEED`` or a mesh file (.glb .gltf .obj .ply .dae)."""
-    json: bool = False
-    """Print JSON instead of a table."""
-    map: Path | None = None
-    """Also write a top-down map PNG (navigable area, obstacles, components, scale)."""
-    up_axis: str = "z"
-    """Up axis of a mesh file: ``z`` (Gibson, the shared scenes) or ``y`` (glTF/HM3D)."""
-    floor_height: float | None = None
-    """Multi-floor meshes: use the floor nearest this height (metres)."""
-
-    def run(self) -> int:
-        """Load, summarise, print; optionally draw."""
-        options: dict[str, Any] = {}
-        if not self.scene.startswith("procedural:"):
-            options = {"up_axis": self.up_axis, "floor_height": self.floor_height}
-        scene = load_scene(self.scene, **options)
-        info = scene_summary(scene)
-        if self.map is not None:
-            from collavn.viz.topdown import save_scene_map
-
-            info["map"] = str(save_scene_map(scene, self.map))
-        if self.json:
-            print(json.dumps(info, indent=2))
-        else:
-            from rich.console import Console
-            from rich.table import Table
-
-            table = Table(title=f"scene {info['name']}", show_header=False)
-            for key, value in info.items():
-                table.add_row(key, str(value))
-            Console().print(table)
-        return 0

@@ -1,8 +1,9 @@
-"""`collavn …` — the command line.
+"""`collavn …` — the command line: one module per command; no library module imports it.
 
-Each command is a dataclass (fields documented, turned into ``--help`` by tyro) with a
-``run()`` method, living next to the domain it belongs to. This file only maps
-command words to those classes and imports them lazily, so ``collavn --help`` is fast.
+A command is a dataclass (fields documented, turned into ``--help`` by tyro) with a
+``run()`` method, or a ``main(args, prog)`` function when it parses a config tree
+itself (``train``). This file only maps command words to them and imports them
+lazily, so ``collavn --help`` is fast.
 """
 
 from __future__ import annotations
@@ -14,23 +15,23 @@ import tyro
 
 from collavn.errors import CollavnError
 
-#: command words → (module, class). Add a line here to add a command.
+#: command words → (module, class or function, one line). Add a line to add a command.
 COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
-    ("demo",): ("collavn.evaluation.demo", "Demo",
+    ("demo",): ("collavn.cli.demo", "Demo",
                 "Episodes on a procedural scene, oracle vs random, table and pictures."),
-    ("scene", "info"): ("collavn.scenes.command", "SceneInfo",
+    ("scene", "info"): ("collavn.cli.scene", "SceneInfo",
                         "Describe a scene: size, navigable area, components; draw its map."),
-    ("dataset", "generate"): ("collavn.datasets.command", "DatasetGenerate",
+    ("dataset", "generate"): ("collavn.cli.dataset", "DatasetGenerate",
                               "Generate episode files of one task setting and split."),
-    ("dataset", "info"): ("collavn.datasets.command", "DatasetInfo",
+    ("dataset", "info"): ("collavn.cli.dataset", "DatasetInfo",
                           "Summarise an episode dataset: counts per difficulty, histograms."),
-    ("render",): ("collavn.rendering.command", "RenderCommand",
+    ("render",): ("collavn.cli.render", "RenderCommand",
                   "Render a panorama (or goal view) at a pose, with a depth picture."),
-    ("evaluate",): ("collavn.evaluation.command", "Evaluate",
+    ("evaluate",): ("collavn.cli.evaluate", "Evaluate",
                     "Score random, oracle or a checkpoint on a dataset: records and tables."),
-    ("viz",): ("collavn.evaluation.command", "Viz",
+    ("viz",): ("collavn.cli.viz", "Viz",
                "Trajectory maps and an episode GIF from an evaluation's output."),
-    ("train",): ("collavn.training.command", "Train",
+    ("train",): ("collavn.cli.train", "main",
                  "Train ours / no-mem / no-com (PPO) or il; checkpoints, TensorBoard, resume."),
 }
 
@@ -48,10 +49,12 @@ def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     for words, (module, name, _) in sorted(COMMANDS.items(), key=lambda kv: -len(kv[0])):
         if tuple(args[: len(words)]) == words:
-            cls = getattr(importlib.import_module(module), name)
-            command = tyro.cli(cls, args=args[len(words):], prog="collavn " + " ".join(words))
+            target = getattr(importlib.import_module(module), name)
+            prog, rest = "collavn " + " ".join(words), args[len(words):]
             try:
-                return int(command.run() or 0)
+                if isinstance(target, type):
+                    return int(tyro.cli(target, args=rest, prog=prog).run() or 0)
+                return int(target(rest, prog) or 0)
             except CollavnError as e:
                 print(f"collavn: error: {e}", file=sys.stderr)
                 return 2

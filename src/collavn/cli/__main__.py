@@ -1,0 +1,5 @@
+"""``python -m collavn.cli …`` (e.g. under ``torchrun``)."""
+
+from collavn.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,52 @@
+"""``collavn scene info``: describe a scene and draw its map."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
+
+import tyro
+
+from collavn.scenes.loading import load_scene
+from collavn.scenes.summary import scene_summary
+
+
+@dataclass
+class SceneInfo:
+    """Describe a scene: triangles, bounds, navigable area, components, geodesic span."""
+
+    scene: Annotated[str, tyro.conf.Positional]
+    """``procedural:SEED`` or a mesh file (.glb .gltf .obj .ply .dae)."""
+    json: bool = False
+    """Print JSON instead of a table."""
+    map: Path | None = None
+    """Also write a top-down map PNG (navigable area, obstacles, components, scale)."""
+    up_axis: str = "z"
+    """Up axis of a mesh file: ``z`` (Gibson, the shared scenes) or ``y`` (glTF/HM3D)."""
+    floor_height: float | None = None
+    """Multi-floor meshes: use the floor nearest this height (metres)."""
+
+    def run(self) -> int:
+        """Load, summarise, print; optionally draw."""
+        options: dict[str, Any] = {}
+        if not self.scene.startswith("procedural:"):
+            options = {"up_axis": self.up_axis, "floor_height": self.floor_height}
+        scene = load_scene(self.scene, **options)
+        info = scene_summary(scene)
+        if self.map is not None:
+            from collavn.viz.topdown import save_scene_map
+
+            info["map"] = str(save_scene_map(scene, self.map))
+        if self.json:
+            print(json.dumps(info, indent=2))
+        else:
+            from rich.console import Console
+            from rich.table import Table
+
+            table = Table(title=f"scene {info['name']}", show_header=False)
+            for key, value in info.items():
+                table.add_row(key, str(value))
+            Console().print(table)
+        return 0

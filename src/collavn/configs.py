@@ -1,0 +1,73 @@
+"""Frozen config dataclasses ↔ JSON dicts, exactly, and the differences between two.
+
+Every configuration in collavn (``EnvConfig``, ``ModelConfig``, ``TrainConfig``, …) is a
+frozen dataclass tree. :func:`to_dict` turns one into JSON-compatible values (tuples
+become lists); :func:`from_dict` rebuilds it and refuses a dict with an unknown or a
+missing key, naming the dotted path, so a saved ``config.json`` round-trips exactly or
+not at all.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from typing import Any, TypeVar
+
+from collavn.errors import ConfigError
+
+T = TypeVar("T")
+
+
+def to_dict(config: Any) -> dict[str, Any]:
+    """JSON-compatible dict of a dataclass tree (tuples become lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(config)))
+
+
+def from_dict(cls: type[T], data: dict[str, Any], path: str = "") -> T:
+    """Rebuild ``cls`` from :func:`to_dict` output.
+
+    Raises:
+        ConfigError: ``data`` is not a dict, has a key ``cls`` does not know, or lacks
+            one it needs (the message names the dotted path), or a value is refused by
+            the dataclass's own checks.
+    """
+    if not isinstance(data, dict):
+        raise ConfigError(f"config {path or cls.__name__}: expected a mapping, got "
+                          f"{type(data).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ConfigError(f"unknown config key {path}{unknown[0]!s} (known: "
+                          f"{', '.join(sorted(fields))})")
+    missing = sorted(set(fields) - set(data))
+    if missing:
+        raise ConfigError(f"config is missing key {path}{missing[0]} (written by another "
+                          f"version of collavn?)")
+    hints = typing.get_type_hints(cls)
+    values = {name: _value(hints[name], data[name], f"{path}{name}.") for name in fields}
+    try:
+        return cls(**values)
+    except ConfigError:
+        raise
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"config {path or cls.__name__}: {e}") from e
+
+
+def _value(hint: Any, value: Any, path: str) -> Any:
+    """Rebuild one field: nested dataclasses recurse, lists become tuples."""
+    if dataclasses.is_dataclass(hint) and isinstance(hint, type):
+        return from_dict(hint, value, path)
+    if typing.get_origin(hint) is tuple and isinstance(value, list):
+        return tuple(value)
+    return value
+
+
+def differences(a: Any, b: Any, prefix: str = "") -> dict[str, tuple[Any, Any]]:
+    """``{"dotted.path": (a value, b value)}`` for every leaf where two dicts differ."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        out: dict[str, tuple[Any, Any]] = {}
+        for k in sorted(set(a) | set(b)):
+            out.update(differences(a.get(k), b.get(k), f"{prefix}{k}."))
+        return out
+    return {} if a == b else {prefix[:-1]: (a, b)}

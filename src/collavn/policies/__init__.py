@@ -1,0 +1,39 @@
+"""Policies behind one protocol: random, the shortest-path oracle, trained checkpoints.
+
+Training and evaluation both import this package; neither imports the other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from collavn.errors import CollavnError
+from collavn.policies.base import Policy, RandomPolicy
+from collavn.policies.checkpoint import CheckpointPolicy, load_policy
+from collavn.policies.oracle import OraclePolicy
+from collavn.scenes.scene import Scene
+
+#: Policies named by a word (anything else is a checkpoint path).
+NAMED_POLICIES = ("random", "oracle")
+
+__all__ = ["NAMED_POLICIES", "CheckpointPolicy", "OraclePolicy", "Policy", "RandomPolicy",
+           "load_policy", "make_policy"]
+
+
+def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0, device: str = "cpu",
+                stochastic: bool = False) -> tuple[Policy, dict[str, Any]]:
+    """A policy by name (``random``, ``oracle``) or checkpoint path.
+
+    Returns:
+        The policy and the env overrides it needs (privileged observations, image sizes).
+    """
+    if name == "random":
+        return RandomPolicy(seed), {}
+    if name == "oracle":
+        return OraclePolicy(scenes), {"privileged": True}
+    if not Path(name).exists():
+        raise CollavnError(f"unknown policy {name!r}: use {', '.join(NAMED_POLICIES)} or a "
+                           f"checkpoint file")
+    return load_policy(name, device=device, stochastic=stochastic, seed=seed)

@@ -1,0 +1,129 @@
+"""Checkpoint files, and a trained model behind the policy interface.
+
+A checkpoint is one ``torch.save`` file holding the resolved training config (as a
+dict: ``{"method", "preset", "env", "model", "ppo", "mapping", "imitation", "run"}``),
+the update counter, the model and optimizer states. It is written with
+:func:`collavn.files.atomic_write`, so a kill at any moment leaves either the old or the
+new checkpoint, never a torn one.
+
+Format history: 1 — flat config, agent scores as a softmax across agents (no teammate
+message could pass η = ½ at N = 2); 2 — the config tree and the paper's per-pair
+scores. Format-1 checkpoints are refused with that reason.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from collavn.configs import from_dict
+from collavn.errors import CheckpointError, ConfigError
+from collavn.files import atomic_write
+from collavn.models.config import ModelConfig
+from collavn.models.policy import ActorCritic
+from collavn.models.state import AgentState
+from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
+
+#: Bumped when the checkpoint layout or the meaning of its weights changes.
+FORMAT_VERSION = 2
+
+#: Why older formats are refused.
+_OLD_FORMATS = {1: "written before the configuration tree and the per-pair communication "
+                   "scores (its communication semantics changed: a softmax across agents "
+                   "let no teammate message through at N = 2); train it again"}
+
+
+def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
+    """Write ``payload`` (plus the format version) to ``path`` atomically."""
+    data = {"format": FORMAT_VERSION, **payload}
+    return atomic_write(path, lambda f: torch.save(data, f))
+
+
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
+                    ) -> dict[str, Any]:
+    """Read a checkpoint; raises :class:`CheckpointError` if it is not a current one of ours."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"no checkpoint at {path}")
+    try:
+        payload = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as e:  # torch raises many kinds on a corrupt file
+        raise CheckpointError(f"cannot read checkpoint {path}: {e}") from e
+    version = payload.get("format") if isinstance(payload, dict) else None
+    if version in _OLD_FORMATS:
+        raise CheckpointError(f"checkpoint {path} has format {version}: "
+                              f"{_OLD_FORMATS[version]}")
+    if version != FORMAT_VERSION:
+        raise CheckpointError(f"{path} is not a collavn training checkpoint "
+                              f"(format {FORMAT_VERSION})")
+    return payload
+
+
+def checkpoint_model_config(payload: dict[str, Any], path: str | Path) -> ModelConfig:
+    """The :class:`ModelConfig` a checkpoint's weights belong to."""
+    try:
+        return from_dict(ModelConfig, payload["config"]["model"], "model.")
+    except (ConfigError, KeyError, TypeError) as e:
+        raise CheckpointError(f"checkpoint {path} has an unreadable model config: {e}") from e
+
+
+class CheckpointPolicy:
+    """A trained :class:`ActorCritic` as a policy.
+
+    Numpy observations go to torch on the model's device; ``episode_start`` comes from
+    ``obs["step"] == 0``; actions are the policy mean clipped to [-1, 1], or with
+    ``stochastic`` samples of the Gaussian (from a generator seeded by ``seed``). Works
+    for any number of agents (Ad-hoCoop; ``il`` copies).
+    """
+
+    def __init__(self, model: ActorCritic, stochastic: bool = False, seed: int = 0) -> None:
+        self.model = model.eval()
+        self.keys = policy_keys(model.cfg.map.use_depth)
+        self.stochastic = stochastic
+        self.seed = seed
+
+    def initial_state(self, num_envs: int, num_agents: int) -> AgentState:
+        """Zero recurrent state."""
+        return self.model.initial_state(num_envs, num_agents)
+
+    def act(self, obs: dict[str, np.ndarray], state: AgentState
+            ) -> tuple[np.ndarray, AgentState]:
+        """Actions ``(E, N, 2)`` (the mean, or a sample if ``stochastic``), next state."""
+        device = self.model.device
+        inputs = obs_to_torch(obs, self.keys, device), state, episode_start(obs, device)
+        if not self.stochastic:
+            out = self.model.act(*inputs, deterministic=True)
+            return out.action.cpu().numpy().astype(np.float64), out.state
+        # Sampling draws from torch's global generator: reseed it per call (reproducible
+        # per seed) inside fork_rng, so the caller's random state is left as it was.
+        with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
+            torch.manual_seed(self.seed)
+            self.seed += 1
+            out = self.model.act(*inputs)
+        return out.action.cpu().numpy().astype(np.float64), out.state
+
+
+def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
+                seed: int = 0) -> tuple[CheckpointPolicy, dict[str, Any]]:
+    """A checkpoint as an evaluation policy, plus the env settings it needs.
+
+    Returns:
+        The policy and ``EnvConfig`` overrides (image sizes, depth).
+    """
+    payload = load_checkpoint(path, map_location=device)
+    model_cfg = checkpoint_model_config(payload, path)
+    model = ActorCritic(model_cfg, device=device)
+    try:
+        model.load_state_dict(payload["model"])
+    except (RuntimeError, KeyError) as e:
+        raise CheckpointError(f"checkpoint {path}: its weights do not fit its model "
+                              f"config: {e}") from e
+    _, h, w = model_cfg.panorama_shape
+    overrides: dict[str, Any] = {"panorama_width": w, "panorama_height": h,
+                                 "goal_size": model_cfg.goal_shape[-1]}
+    if model_cfg.map.use_depth:
+        overrides["depth"] = True
+    return CheckpointPolicy(model, stochastic, seed), overrides
