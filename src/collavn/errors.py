@@ -1,4 +1,4 @@
-"""Errors raised by collavn; each names the problem and the object it concerns."""
+"""Errors and warnings raised by collavn; each names the problem and the object it concerns."""
 
 
 class CollavnError(Exception):
@@ -23,3 +23,11 @@ class DatasetError(CollavnError, ValueError):
 
 class CheckpointError(CollavnError, ValueError):
     """A checkpoint is unreadable or was written by a different configuration."""
+
+
+class CollavnWarning(UserWarning):
+    """Base class for warnings: the input was usable but probably not what was meant."""
+
+
+class SceneWarning(CollavnWarning):
+    """A scene loaded but looks wrong (up axis, unit, missing textures, off-map pose)."""
