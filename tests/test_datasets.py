@@ -245,3 +245,71 @@ def test_cli_generate_and_info(tmp_path, door_scene, capsys):
     assert sum(info["histograms"]["specificgoal_n2/val"]) == 60  # 30 episodes × 2 agents
     assert DatasetInfo(tmp_path / "ds").run() == 0
     assert "door" in capsys.readouterr().out
+
+
+def _y_up_centimetre_room(path: Path) -> Path:
+    """A 7 × 5 m room in centimetres, Y up, as OBJ: a file needing two load options."""
+    import trimesh
+
+    parts = []
+    for lo, hi in (((0, 0, -0.1), (7, 5, 0)), ((0, 0, 0), (7, 0.1, 2.5)),
+                   ((0, 4.9, 0), (7, 5, 2.5)), ((0, 0, 0), (0.1, 5, 2.5)),
+                   ((6.9, 0, 0), (7, 5, 2.5)), ((3, 2, 0), (4, 3, 1))):
+        box = trimesh.creation.box(extents=np.subtract(hi, lo))
+        box.apply_translation(np.add(lo, hi) / 2)
+        parts.append(box)
+    mesh = trimesh.util.concatenate(parts)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, (1, 0, 0)))
+    mesh.apply_scale(100.0)
+    mesh.export(path)
+    return path
+
+
+def test_dataset_from_a_y_up_scene_reloads_its_scene_from_what_it_recorded(tmp_path):
+    from collavn.datasets.episode import SceneRef
+    from collavn.scenes import SceneSpec, load_scene
+
+    path = _y_up_centimetre_room(tmp_path / "hall.obj")
+    scene = load_scene(SceneSpec(str(path), up_axis="y", scale=0.01), cache=False)
+    episodes = sample_episodes(scene, "commongoal", 2, "easy", 3, np.random.default_rng(0))
+    out = tmp_path / "hall.json.gz"
+    save_episode_file(out, EpisodeFile("commongoal", 2, "val", SceneRef.of(scene),
+                                       {"seed": 0}, tuple(episodes)))
+    content = load_episode_file(out)
+    assert content.scene.spec == SceneSpec(str(path.resolve()), up_axis="y", scale=0.01)
+    again = load_scene(content.scene.spec, cache_dir=tmp_path / "cache")
+    content.check_scene(again)  # the same scene, from the record alone
+    assert load_episode_file(out, again).episodes[0].episode_id == episodes[0].episode_id
+    other = load_scene(content.scene.spec.source, scale=0.011, cache=False)
+    with pytest.raises(DatasetError, match=r"loaded as .*hall\.obj \(up_axis='y', scale=0\.01, "
+                                           r"floor_height=None\).*loaded as .*"
+                                           r"up_axis='auto', scale=0\.011.*--up-axis"):
+        content.check_scene(other)
+
+
+def test_old_episode_files_without_a_spec_still_load(tmp_path, door_scene):
+    from collavn.datasets.episode import SceneRef
+    from collavn.scenes import SceneSpec
+
+    ref = SceneRef(door_scene.name, "procedural:4", door_scene.content_hash)  # no spec
+    assert "spec" not in ref.to_json()
+    episodes = sample_episodes(door_scene, "commongoal", 2, "easy", 1,
+                               np.random.default_rng(0))
+    out = tmp_path / "old.json.gz"
+    save_episode_file(out, EpisodeFile("commongoal", 2, "val", ref, {}, tuple(episodes)))
+    content = load_episode_file(out, door_scene)
+    assert content.scene.recorded_spec is None
+    assert content.scene.spec == SceneSpec("procedural:4")
+    with pytest.raises(DatasetError, match="options not recorded"):
+        content.check_scene(door_scene.__class__(**{**_fields(door_scene),
+                                                    "vertices": door_scene.vertices + 1}))
+    with pytest.raises(DatasetError, match="malformed scene reference"):
+        SceneRef.from_json({"name": "a", "source": "b", "content_hash": "c",
+                            "spec": {"source": "b", "scale": -1}})
+
+
+def _fields(scene: Scene) -> dict:
+    import dataclasses
+
+    return {f.name: getattr(scene, f.name) for f in dataclasses.fields(scene)
+            if f.name != "_fields"}

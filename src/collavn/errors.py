@@ -1,4 +1,4 @@
-"""Errors raised by collavn; each names the problem and the object it concerns."""
+"""Errors and warnings raised by collavn; each names the problem and the object it concerns."""
 
 
 class CollavnError(Exception):
@@ -27,3 +27,11 @@ class CheckpointError(CollavnError, ValueError):
 
 class ConfigError(CollavnError, ValueError):
     """A configuration value or a saved configuration is invalid."""
+
+
+class CollavnWarning(UserWarning):
+    """Base class for warnings: the input was usable but probably not what was meant."""
+
+
+class SceneWarning(CollavnWarning):
+    """A scene loaded but looks wrong (up axis, unit, missing textures, off-map pose)."""

@@ -87,7 +87,7 @@ def generate_dataset(out: str | Path, scenes: Sequence[Scene], task: str, agents
             path = episode_path(out, group, split, scene.name)
             save_episode_file(path, EpisodeFile(
                 task=task, num_agents=n, split=split,
-                scene=SceneRef(scene.name, scene.source, scene.content_hash),
+                scene=SceneRef.of(scene),
                 generator=meta, episodes=tuple(episodes)))
             written.append(path)
     write_index(out)

@@ -11,7 +11,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from collavn.errors import DatasetError
+from collavn.errors import DatasetError, SceneError
+from collavn.scenes.scene import Scene
+from collavn.scenes.spec import SceneSpec
 from collavn.scenes.splits import SPLITS
 from collavn.tasks import TASKS
 
@@ -61,21 +63,58 @@ def in_bin(distance: np.ndarray, difficulty: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class SceneRef:
-    """Which scene an episode belongs to.
+    """Which scene an episode belongs to, and how to load it again.
 
     Attributes:
         name: ``Scene.name``, e.g. ``procedural:3``.
         source: ``Scene.source``: ``procedural:SEED`` or the mesh path it came from.
         content_hash: ``Scene.content_hash``: SHA-256 of geometry and navigation.
+        recorded_spec: ``Scene.spec``: the source and load options (up axis, scale,
+            floor height) the scene was loaded with; ``None`` in files written
+            before specs were recorded. Use :attr:`spec`.
     """
 
     name: str
     source: str
     content_hash: str
+    recorded_spec: SceneSpec | None = None
 
-    def to_json(self) -> dict[str, str]:
-        """Plain JSON object."""
-        return {"name": self.name, "source": self.source, "content_hash": self.content_hash}
+    @classmethod
+    def of(cls, scene: Scene) -> SceneRef:
+        """The reference to ``scene``, with the spec it was loaded with."""
+        return cls(scene.name, scene.source, scene.content_hash, scene.spec)
+
+    @property
+    def spec(self) -> SceneSpec:
+        """What to pass to :func:`collavn.scenes.load_scene` to get the scene back.
+
+        The recorded spec; for older files without one, the source with default
+        load options (what those files were made with unless options were given).
+        """
+        return self.recorded_spec or SceneSpec.of(self.source)
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain JSON object (``spec`` only when recorded, so older files hash alike)."""
+        out: dict[str, Any] = {"name": self.name, "source": self.source,
+                               "content_hash": self.content_hash}
+        if self.recorded_spec is not None:
+            out["spec"] = self.recorded_spec.to_dict()
+        return out
+
+    @classmethod
+    def from_json(cls, obj: dict[str, Any]) -> SceneRef:
+        """Inverse of :meth:`to_json`.
+
+        Raises:
+            DatasetError: a missing field or an invalid recorded spec.
+        """
+        try:
+            spec = obj.get("spec")
+            return cls(name=str(obj["name"]), source=str(obj["source"]),
+                       content_hash=str(obj["content_hash"]),
+                       recorded_spec=None if spec is None else SceneSpec.from_dict(spec))
+        except (KeyError, TypeError, AttributeError, SceneError) as e:
+            raise DatasetError(f"malformed scene reference {obj!r}: {e}") from e
 
 
 @dataclass(frozen=True, eq=False)

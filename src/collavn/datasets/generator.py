@@ -140,7 +140,7 @@ def sample_episodes(scene: Scene, task: str, num_agents: int, difficulty: str, c
     nav = scene.nav
     sep = (2 * nav.config.agent_radius + 0.1 if config.min_separation is None
            else config.min_separation)
-    ref = SceneRef(scene.name, scene.source, scene.content_hash)
+    ref = SceneRef.of(scene)
     num_goals = num_agents if task == "specificgoal" else 1
     goal_index = np.arange(num_agents) % num_goals
     cells = np.flatnonzero(nav.navigable)

@@ -70,15 +70,28 @@ class EpisodeFile:
     def check_scene(self, scene: Scene, path: str | Path = "episode file") -> None:
         """Refuse a scene other than the one the episodes were generated for.
 
+        The scene to check is usually ``load_scene(content.scene.spec)``: the source
+        and load options this file recorded.
+
         Raises:
-            DatasetError: naming both scenes and both hashes.
+            DatasetError: naming both scenes, both hashes and both load specs.
         """
-        if scene.content_hash != self.scene.content_hash:
-            raise DatasetError(
-                f"{path} was generated for scene {self.scene.name!r} "
-                f"(sha256 {self.scene.content_hash[:12]}…) but was given scene "
-                f"{scene.name!r} (sha256 {scene.content_hash[:12]}…): regenerate the "
-                f"episodes or load the matching scene")
+        if scene.content_hash == self.scene.content_hash:
+            return
+        given = (scene.spec.describe() if scene.spec
+                 else f"{scene.source or scene.name} with unknown options")
+        raise DatasetError(
+            f"{path} was generated for scene {self.scene.name!r} "
+            f"(sha256 {self.scene.content_hash[:12]}…, loaded as {self._recorded_load()}) "
+            f"but was given scene {scene.name!r} (sha256 {scene.content_hash[:12]}…, "
+            f"loaded as {given}): load the scene with the recorded spec "
+            f"(load_scene(content.scene.spec); on the command line the same --up-axis, "
+            f"--scale and --floor-height) or regenerate the episodes")
+
+    def _recorded_load(self) -> str:
+        if self.scene.recorded_spec is None:
+            return f"{self.scene.source} with options not recorded (an older file)"
+        return self.scene.recorded_spec.describe()
 
 
 def group_name(task: str, num_agents: int, eval_agents: int | None = None) -> str:
@@ -130,7 +143,7 @@ def load_episode_file(path: str | Path, scene: Scene | None = None) -> EpisodeFi
         raise DatasetError(f"{path} was modified after it was written: its content hash "
                            f"does not match; regenerate it instead of editing it")
     try:
-        ref = SceneRef(**doc["scene"])
+        ref = SceneRef.from_json(doc["scene"])
         task = check_task(doc["task"])
         content = EpisodeFile(
             task=task, num_agents=int(doc["num_agents"]), split=check_split(doc["split"]),

@@ -21,12 +21,13 @@ scene's floor, in a colour per agent index; ``exclude`` names each view's own bo
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
 import numpy as np
 
-from collavn.errors import RenderError
+from collavn.errors import RenderError, SceneWarning
 from collavn.rendering.cameras import CameraSpec
 from collavn.rendering.embree_backend import EmbreeBackend
 from collavn.rendering.shading import BodySpec, Lighting, ShadingTables
@@ -107,6 +108,7 @@ class Renderer:
         tables = ShadingTables.from_scene(scene, lighting or Lighting())
         self._backend: Backend = _make_backend(scene, tables, backend, device, threads, chunk_rays)
         self._dirs = {name: spec.ray_directions() for name, spec in self.cameras.items()}
+        self._warned_off_map = False
 
     def close(self) -> None:
         """Release the backend's threads."""
@@ -143,6 +145,8 @@ class Renderer:
             raise RenderError(f"unknown camera {camera!r}: use 'panorama' or 'goal'")
         spec = self.cameras[camera]
         pose = _check_poses(poses)
+        if not self._warned_off_map:
+            self._warned_off_map = _warn_off_map(self.scene, pose)
         bodies, skip = _check_bodies(agents, exclude, len(pose))
         views = np.empty((len(pose), 5), np.float32)
         views[:, 0:2] = pose[:, 0:2]
@@ -193,6 +197,23 @@ def _check_poses(poses: np.ndarray) -> np.ndarray:
         bad = int(np.nonzero(~np.isfinite(pose).all(axis=1))[0][0])
         raise RenderError(f"pose {bad} contains NaN or inf: {pose[bad].tolist()}")
     return pose
+
+
+def _warn_off_map(scene: Scene, pose: np.ndarray) -> bool:
+    """Warn if a ``(B, 3)`` pose stands where the scene has no floor; True if it did."""
+    nav = scene.nav
+    on_floor = nav.lookup(nav.floor, pose[:, :2], outside=False)
+    if on_floor.all():
+        return False
+    k = int(np.argmin(on_floor))
+    lo = nav.origin
+    hi = lo + np.array(nav.shape[::-1]) * nav.resolution
+    warnings.warn(
+        f"scene {scene.name!r}: pose {k} at ({pose[k, 0]:.2f}, {pose[k, 1]:.2f}) is off the "
+        f"navigable map (no floor there; the map spans x ∈ [{lo[0]:.1f}, {hi[0]:.1f}], "
+        f"y ∈ [{lo[1]:.1f}, {hi[1]:.1f}] m), so its view will be mostly black; further "
+        f"off-map poses of this renderer are not reported", SceneWarning, stacklevel=3)
+    return True
 
 
 def _check_bodies(agents: np.ndarray | None, exclude: np.ndarray | None,

@@ -1,4 +1,4 @@
-"""Turn a scene spec (``procedural:SEED`` or a mesh path) into a cached :class:`Scene`."""
+"""Turn a :class:`SceneSpec` (or its source string) into a cached :class:`Scene`."""
 
 from __future__ import annotations
 
@@ -9,11 +9,17 @@ from pathlib import Path
 from typing import Any
 
 from collavn.errors import SceneError
+from collavn.scenes.limits import SizeLimits
 from collavn.scenes.navigation import NavConfig
 from collavn.scenes.scene import SCENE_FORMAT_VERSION, Scene
+from collavn.scenes.spec import SceneSpec, parse_scene_spec
+
+__all__ = ["cache_path", "default_cache_dir", "load_scene", "parse_scene_spec"]
 
 #: Bump when procedural generation changes, so cached apartments are rebuilt.
 PROCEDURAL_VERSION = 1
+#: Bump when mesh import changes its result for the same file and options.
+MESH_IMPORT_VERSION = 2
 
 
 def default_cache_dir() -> Path:
@@ -22,80 +28,100 @@ def default_cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "collavn"
 
 
-def parse_scene_spec(spec: str) -> tuple[str, str]:
-    """Split a spec into its kind (``procedural``, ``saved`` or ``mesh``) and its value.
+def load_scene(scene: str | Path | SceneSpec, *, cache: bool = True,
+               cache_dir: str | Path | None = None, nav_config: NavConfig | None = None,
+               limits: SizeLimits | None = None, **options: Any) -> Scene:
+    """Load a scene, using the on-disk cache when possible.
 
-    The value is the seed's digits for ``procedural:SEED`` and the path otherwise.
-    """
-    if spec.startswith("procedural:"):
-        text = spec.split(":", 1)[1]
-        try:
-            seed = int(text)
-        except ValueError:
-            raise SceneError(f"bad scene spec {spec!r}: the seed must be an integer, "
-                             f"e.g. procedural:0") from None
-        if seed < 0:
-            raise SceneError(f"bad scene spec {spec!r}: the seed must be ≥ 0")
-        return "procedural", str(seed)
-    if spec.endswith(".npz"):
-        return "saved", spec
-    return "mesh", spec
-
-
-def load_scene(spec: str, *, cache: bool = True, cache_dir: str | Path | None = None,
-               nav_config: NavConfig | None = None, **options: Any) -> Scene:
-    """Load a scene by spec, using the on-disk cache when possible.
+    ``load_scene("procedural:3")``, ``load_scene("hall.dae")``,
+    ``load_scene("scan.obj", up_axis="y", scale=0.01)`` and
+    ``load_scene(SceneSpec("scan.obj", up_axis="y", scale=0.01))`` are the ways in;
+    the last two are the same load. The returned scene records the spec it was loaded
+    with (``scene.spec``, source made absolute), so ``load_scene(scene.spec)`` loads it
+    again.
 
     Args:
-        spec: ``procedural:SEED``, a path to a ``.glb/.gltf/.obj/.ply/.dae`` file, or
-            an ``.npz`` written by :meth:`Scene.save`.
+        scene: A :class:`SceneSpec` or its source: ``procedural:SEED``, a path to a
+            ``.glb/.gltf/.obj/.ply/.dae`` file, or an ``.npz`` from :meth:`Scene.save`.
         cache: Read and write the processed scene (geometry, textures, navigation
-            grid) under ``cache_dir``; keyed by the file's content and all options.
+            grid) under ``cache_dir``, keyed by :func:`cache_path`.
         cache_dir: Defaults to :func:`default_cache_dir`.
         nav_config: Navigation parameters (robot radius, grid resolution, ...).
-        **options: Passed to :func:`collavn.scenes.procedural.generate_apartment` or
-            :func:`collavn.scenes.meshes.load_mesh_scene` (e.g. ``up_axis="y"``).
+        limits: Largest mesh extent and navigation grid to accept (default
+            :class:`SizeLimits`); not part of the cache key.
+        **options: Load options of :class:`SceneSpec` (``up_axis``, ``scale``,
+            ``floor_height``), replacing those of ``scene``.
+
+    Raises:
+        SceneError: a bad spec, a missing or unreadable file, a scene larger than
+            ``limits``, or no floor.
     """
-    kind, value = parse_scene_spec(spec)
-    if kind == "saved":  # a scene written by Scene.save: nothing to process or cache
-        if not Path(value).is_file():
-            raise SceneError(f"saved scene not found: {value}")
+    spec = SceneSpec.of(scene, **options).resolved()
+    if spec.kind == "saved":  # a scene written by Scene.save: nothing to process or cache
+        if not Path(spec.source).is_file():
+            raise SceneError(f"saved scene not found: {spec.source}")
         # Its source becomes this file, so episode files made from it can find it again.
-        return replace(Scene.load(value), source=str(Path(value).resolve()))
+        return replace(Scene.load(spec.source), source=spec.source, spec=spec)
+    if spec.kind == "mesh" and not Path(spec.source).is_file():
+        raise SceneError(f"scene file not found: {spec.source}")
     nav_config = nav_config or NavConfig()
-    key = hashlib.sha256()
-    key.update(repr((SCENE_FORMAT_VERSION, kind, sorted(options.items()),
-                     sorted(asdict(nav_config).items()))).encode())
-    if kind == "procedural":
-        key.update(f"procedural-v{PROCEDURAL_VERSION}:{value}".encode())
-        stem = f"procedural-{value}"
-    else:
-        path = Path(value)
-        if not path.is_file():
-            raise SceneError(f"scene file not found: {path}")
-        key.update(path.read_bytes())
-        stem = path.stem
-    cached = Path(cache_dir or default_cache_dir()) / f"{stem}-{key.hexdigest()[:16]}.npz"
+    cached = cache_path(spec, nav_config, cache_dir)
     if cache and cached.is_file():
         try:
-            return Scene.load(cached)
+            return _with_spec(Scene.load(cached), spec)
         except SceneError:
             cached.unlink(missing_ok=True)  # stale or damaged cache: rebuild below
-    scene = _build(kind, value, nav_config, options)
+    built = _with_spec(_build(spec, nav_config, limits), spec)
     if cache:
         try:
-            scene.save(cached)
+            built.save(cached)
         except OSError:
             pass  # a read-only cache directory only costs speed
-    return scene
+    return built
 
 
-def _build(kind: str, value: str, nav_config: NavConfig,
-           options: dict[str, Any]) -> Scene:
-    if kind == "procedural":
+def cache_path(spec: SceneSpec, nav_config: NavConfig,
+               cache_dir: str | Path | None = None) -> Path:
+    """Where the processed scene of ``spec`` is cached: the one definition of the key.
+
+    The key covers the scene format, the procedural generator or mesh importer
+    version, the file's content (not its path), every load option and the
+    navigation parameters; ``procedural:3`` and ``SceneSpec("procedural:3")`` share it.
+    """
+    key = hashlib.sha256()
+    options = spec.to_dict()
+    del options["source"]
+    key.update(repr((SCENE_FORMAT_VERSION, spec.kind, sorted(options.items()),
+                     sorted(asdict(nav_config).items()))).encode())
+    if spec.kind == "procedural":
+        seed = parse_scene_spec(spec.source)[1]
+        key.update(f"procedural-v{PROCEDURAL_VERSION}:{seed}".encode())
+        stem = f"procedural-{seed}"
+    else:
+        path = Path(spec.source)
+        key.update(f"mesh-v{MESH_IMPORT_VERSION}{path.suffix.lower()}".encode())
+        with path.open("rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                key.update(block)
+        stem = path.stem
+    return Path(cache_dir or default_cache_dir()) / f"{stem}-{key.hexdigest()[:16]}.npz"
+
+
+def _with_spec(scene: Scene, spec: SceneSpec) -> Scene:
+    """``scene`` recording ``spec`` (and its source) as where it came from."""
+    if scene.spec == spec and scene.source == spec.source:
+        return scene
+    return replace(scene, source=spec.source, spec=spec)
+
+
+def _build(spec: SceneSpec, nav_config: NavConfig, limits: SizeLimits | None) -> Scene:
+    if spec.kind == "procedural":
         from collavn.scenes.procedural import generate_apartment
 
-        return generate_apartment(int(value), nav_config=nav_config, **options)
+        seed = int(parse_scene_spec(spec.source)[1])
+        return generate_apartment(seed, nav_config=nav_config)
     from collavn.scenes.meshes import load_mesh_scene
 
-    return load_mesh_scene(Path(value), nav_config=nav_config, **options)
+    return load_mesh_scene(Path(spec.source), up_axis=spec.up_axis, scale=spec.scale,
+                           floor_height=spec.floor_height, nav_config=nav_config,
+                           limits=limits)

@@ -6,67 +6,91 @@ to one square size so the renderer can index them as one ``(M, S, S, 3)`` array.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from PIL import Image
 
-from collavn.errors import SceneError
+from collavn.errors import SceneError, SceneWarning
+from collavn.scenes.limits import SizeLimits
+from collavn.scenes.mesh_files import read_facts
 from collavn.scenes.navigation import NavConfig
+from collavn.scenes.orientation import choose_up_axis, to_z_up, warn_if_implausible
 from collavn.scenes.scene import Scene, build_scene
+from collavn.scenes.spec import SceneSpec, UpAxis
 
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".dae")
 
 
-def load_mesh_scene(path: str | Path, *, up_axis: str = "z", scale: float = 1.0,
+def load_mesh_scene(path: str | Path, *, up_axis: UpAxis = "auto", scale: float = 1.0,
                     floor_height: float | None = None, texture_size: int = 128,
-                    nav_config: NavConfig | None = None) -> Scene:
-    """Load a mesh file as a :class:`Scene`.
+                    nav_config: NavConfig | None = None,
+                    limits: SizeLimits | None = None) -> Scene:
+    """Load a mesh file as a :class:`Scene` (metres, Z up).
+
+    The load options mean what the fields of :class:`~collavn.scenes.spec.SceneSpec`
+    say; :func:`collavn.scenes.load_scene` is the usual way in.
 
     Args:
         path: Mesh file; ``.glb/.gltf/.obj/.ply/.dae``.
-        up_axis: ``"z"`` (Gibson ``mesh_z_up.obj``, and what trimesh returns for the
-            shared test scenes) or ``"y"`` (glTF convention, e.g. HM3D); the result is
-            always Z up.
-        scale: Multiplies coordinates (e.g. 0.01 for centimetre files).
+        up_axis: ``auto`` (the file's declaration, else the geometry), ``x``, ``y``
+            or ``z``: the file's axis that points up.
+        scale: Multiplies coordinates after the file's own unit (COLLADA ``<unit>``).
         floor_height: Pick the floor nearest this height (multi-floor buildings);
             default: the lowest floor with a substantial area.
         texture_size: Side of the square textures (texels).
         nav_config: Navigation parameters.
+        limits: Largest extent and navigation grid accepted (checked before the grid
+            is allocated).
 
     Raises:
-        SceneError: missing file, unreadable or empty mesh, or no floor.
+        SceneError: missing file, unreadable or empty mesh, a mesh too large for
+            ``limits``, or no floor.
     """
     path = Path(path)
+    spec = SceneSpec(str(path), up_axis=up_axis, scale=scale, floor_height=floor_height)
     if not path.exists():
         raise SceneError(f"mesh file not found: {path}")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise SceneError(f"{path}: unsupported mesh format {path.suffix!r}; "
                          f"expected one of {', '.join(MESH_SUFFIXES)}")
-    if up_axis not in ("z", "y"):
-        raise SceneError(f"up_axis must be 'z' or 'y', got {up_axis!r}")
-    if not np.isfinite(scale) or scale <= 0:
-        raise SceneError(f"scale must be a positive number, got {scale}")
+    facts = read_facts(path)
+    if facts.missing_textures:
+        missing = ", ".join(facts.missing_textures)
+        warnings.warn(f"{path}: texture file(s) not found: {missing}; those surfaces render "
+                      f"in their material colour (often plain white)", SceneWarning,
+                      stacklevel=2)
     parts = _read_parts(path)
     vertices, faces, uvs, mats, tints, textures = _merge(parts, texture_size)
-    vertices = vertices * scale
-    if up_axis == "y":
-        vertices = np.stack([vertices[:, 0], -vertices[:, 2], vertices[:, 1]], axis=1)
-    floors = find_floors(vertices[faces])
+    vertices = vertices * (facts.unit * spec.scale)
+    axis, reason = choose_up_axis(vertices, spec.up_axis, facts.up_axis, facts.prior_up,
+                                  str(path))
+    vertices = to_z_up(vertices, axis)
+    (limits or SizeLimits()).check_extent(vertices, str(path))
+    floor_z = _pick_floor(path, find_floors(vertices[faces]), spec, axis)
+    scene = build_scene(path.name, vertices, faces, uvs, mats, tints, textures, floor_z,
+                        nav_config, source=str(path.resolve()), limits=limits)
+    warn_if_implausible(scene, axis, reason)
+    return scene
+
+
+def _pick_floor(path: Path, floors: list[float], spec: SceneSpec, axis: str) -> float:
+    """The floor height to use, or an error that says what to try."""
     if not floors:
-        hint = " (is it Y-up? try up_axis='y')" if up_axis == "z" else ""
-        raise SceneError(f"{path}: no horizontal floor surface found{hint}")
-    if floor_height is None:
-        floor_z = floors[0]
-    else:
-        floor_z = min(floors, key=lambda z: abs(z - floor_height))
-        if abs(floor_z - floor_height) > 0.25:
-            raise SceneError(
-                f"{path}: no floor at height {floor_height:.2f} m; floors found at "
-                + ", ".join(f"{z:.2f}" for z in floors) + " m")
-    return build_scene(path.name, vertices, faces, uvs, mats, tints, textures, floor_z,
-                       nav_config, source=str(path.resolve()))
+        others = " or ".join(repr(a) for a in ("z", "y", "x") if a != axis)
+        raise SceneError(f"{path}: no horizontal floor surface found with {axis.upper()} up; "
+                         f"if the file is oriented otherwise, try up_axis={others}")
+    target = spec.floor_height
+    if target is None:
+        return floors[0]
+    floor_z = min(floors, key=lambda z: abs(z - target))
+    if abs(floor_z - target) > 0.25:
+        raise SceneError(
+            f"{path}: no floor at height {target:.2f} m; floors found at "
+            + ", ".join(f"{z:.2f}" for z in floors) + " m")
+    return floor_z
 
 
 def find_floors(triangles: np.ndarray, bin_size: float = 0.05,
@@ -135,8 +159,6 @@ def _merge(parts: list[Any], size: int) -> tuple[np.ndarray, ...]:
                      else np.broadcast_to(tint, (len(f), 3)))
         offset += len(v)
     vertices = np.concatenate(vs)
-    if not np.isfinite(vertices).all():
-        raise SceneError("mesh vertices contain NaN or inf")
     return (vertices, np.concatenate(fs), np.concatenate(uvs), np.concatenate(mats),
             np.clip(np.concatenate(tints), 0, 255).astype(np.uint8), np.stack(textures))
 

@@ -14,6 +14,7 @@ import skfmm
 from scipy import ndimage
 
 from collavn.errors import SceneError
+from collavn.scenes.limits import SizeLimits
 from collavn.scenes.traversability import floor_cells, obstacle_cells
 
 
@@ -67,14 +68,20 @@ class NavGrid:
     # ------------------------------------------------------------ construction
     @classmethod
     def from_triangles(cls, triangles: np.ndarray, floor_z: float, config: NavConfig,
-                       name: str = "scene") -> NavGrid:
-        """Compute the grid from ``(F, 3, 3)`` triangles for the floor at ``floor_z``."""
+                       name: str = "scene", limits: SizeLimits | None = None) -> NavGrid:
+        """Compute the grid from ``(F, 3, 3)`` triangles for the floor at ``floor_z``.
+
+        Raises:
+            SceneError: a grid larger than ``limits`` allows (checked before it is
+                allocated), no floor at ``floor_z``, or no navigable area.
+        """
         res = config.resolution
         lo = triangles.reshape(-1, 3).min(axis=0)
         hi = triangles.reshape(-1, 3).max(axis=0)
         origin = np.floor(lo[:2] / res) * res - res
         shape = (int(np.ceil((hi[1] - origin[1]) / res)) + 2,
                  int(np.ceil((hi[0] - origin[0]) / res)) + 2)
+        (limits or SizeLimits()).check_grid(shape, res, name)
         floor = floor_cells(triangles, floor_z, origin, shape, config)
         if not floor.any():
             raise SceneError(f"{name}: no floor surface at height z={floor_z:.2f} m")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import json
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -18,7 +19,9 @@ import numpy as np
 
 from collavn.errors import SceneError
 from collavn.files import atomic_write
+from collavn.scenes.limits import SizeLimits
 from collavn.scenes.navigation import GeodesicField, NavConfig, NavGrid
+from collavn.scenes.spec import SceneSpec
 
 #: Bumped whenever the on-disk layout of a saved scene changes.
 SCENE_FORMAT_VERSION = 1
@@ -43,6 +46,8 @@ class Scene:
         floor_z: Height of the floor the agents drive on.
         nav: The navigation grid computed for that floor.
         source: Where the scene came from (``procedural:SEED`` or a resolved path).
+        spec: How it was loaded (source and load options): ``load_scene(scene.spec)``
+            rebuilds it. ``None`` for scenes built directly (builder, tests).
     """
 
     name: str
@@ -55,6 +60,7 @@ class Scene:
     floor_z: float
     nav: NavGrid
     source: str = ""
+    spec: SceneSpec | None = None
     _fields: dict[tuple[float, float], GeodesicField] = field(
         default_factory=dict, repr=False, compare=False
     )
@@ -145,6 +151,7 @@ class Scene:
         arrays: dict[str, Any] = dict(
             version=np.int64(SCENE_FORMAT_VERSION),
             name=np.array(self.name), source=np.array(self.source),
+            spec=np.array(json.dumps(self.spec.to_dict()) if self.spec else ""),
             vertices=self.vertices, faces=self.faces, face_uvs=self.face_uvs,
             face_material=self.face_material, face_tint=self.face_tint,
             textures=self.textures, floor_z=np.float64(self.floor_z),
@@ -163,10 +170,12 @@ class Scene:
                     raise SceneError(f"{path}: scene format {int(z['version'])}, "
                                      f"expected {SCENE_FORMAT_VERSION}")
                 arrays = {k: z[k] for k in z.files}
+            spec_text = str(arrays.get("spec", ""))  # absent in scenes saved before specs
+            spec = SceneSpec.from_dict(json.loads(spec_text)) if spec_text else None
         except (OSError, ValueError, KeyError, EOFError) as e:
             raise SceneError(f"cannot read saved scene {path}: {e}") from e
         return cls(
-            name=str(arrays["name"]), source=str(arrays["source"]),
+            name=str(arrays["name"]), source=str(arrays["source"]), spec=spec,
             vertices=arrays["vertices"], faces=arrays["faces"],
             face_uvs=arrays["face_uvs"], face_material=arrays["face_material"],
             face_tint=arrays["face_tint"], textures=arrays["textures"],
@@ -177,12 +186,17 @@ class Scene:
 def build_scene(name: str, vertices: np.ndarray, faces: np.ndarray, face_uvs: np.ndarray,
                 face_material: np.ndarray, face_tint: np.ndarray, textures: np.ndarray,
                 floor_z: float, nav_config: NavConfig | None = None,
-                source: str = "") -> Scene:
-    """Assemble a :class:`Scene` from arrays and compute its navigation grid."""
+                source: str = "", limits: SizeLimits | None = None) -> Scene:
+    """Assemble a :class:`Scene` from arrays and compute its navigation grid.
+
+    Raises:
+        SceneError: malformed arrays, a grid above ``limits``, or no navigable floor.
+    """
     vertices = np.ascontiguousarray(vertices, dtype=np.float32)
     faces = np.ascontiguousarray(faces, dtype=np.int32)
     triangles = vertices[faces]
-    nav = NavGrid.from_triangles(triangles, floor_z, nav_config or NavConfig(), name=name)
+    nav = NavGrid.from_triangles(triangles, floor_z, nav_config or NavConfig(), name=name,
+                                 limits=limits)
     return Scene(
         name=name, vertices=vertices, faces=faces,
         face_uvs=np.ascontiguousarray(face_uvs, dtype=np.float32),

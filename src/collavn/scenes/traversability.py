@@ -6,7 +6,7 @@ for the cell convention) and are used only when a :class:`NavGrid` is built.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,8 +20,14 @@ def floor_cells(triangles: np.ndarray, floor_z: float, origin: np.ndarray,
 
     A vertical ray from just above the floor must hit a surface within a few
     centimetres going down, and nothing below ``agent_height`` going up (this rules
-    out space under table tops). A cell whose upward ray meets the back of an
-    upward-facing surface is inside a closed solid (a wardrobe) and is not floor.
+    out space under table tops). A cell is inside a closed solid (a wardrobe taller
+    than the robot) when its upward ray meets the back of an upward-facing surface
+    *and* horizontal rays meet the backs of surfaces all around; a ceiling seen from
+    behind (a suspended grid of one-sided panels) fails the second test, because the
+    room's walls face the cell.
+
+    Returns:
+        ``(H, W)`` bool.
     """
     import embreex.mesh_construction as mesh_construction
     import embreex.rtcore_scene as rtcore_scene
@@ -33,27 +39,49 @@ def floor_cells(triangles: np.ndarray, floor_z: float, origin: np.ndarray,
     rows, cols = np.mgrid[0:h, 0:w]
     z0 = floor_z + config.step_height - 0.01
     good = np.zeros(h * w, dtype=np.int32)
-    inside = np.zeros(h * w, dtype=np.int32)
+    looks_up_at_back = np.zeros(h * w, dtype=np.int32)
+    up = np.array([0.0, 0.0, 1.0], dtype=np.float32)
     for oy in (0.25 * res, 0.75 * res):
         for ox in (0.25 * res, 0.75 * res):
             o = np.stack([origin[0] + cols.ravel() * res + ox,
                           origin[1] + rows.ravel() * res + oy,
                           np.full(h * w, z0)], axis=1).astype(np.float32)
-            down = np.zeros_like(o)
-            down[:, 2] = -1.0
-            below = scene.run(o, down, output=1)
-            above = scene.run(o, -down, output=1)
+            below = scene.run(o, np.broadcast_to(-up, o.shape).copy(), output=1)
+            above = scene.run(o, np.broadcast_to(up, o.shape).copy(), output=1)
             floor = (below["geomID"] >= 0) & (below["tfar"] <= config.step_height + 0.1)
             clear = (above["geomID"] < 0) | (above["tfar"] > config.agent_height - 0.04)
             good += floor & clear
-            # Looking up at the back of an upward-facing surface: inside a solid.
-            inside += (above["geomID"] >= 0) & (above["Ng"][:, 2] > 0)
+            looks_up_at_back += (above["geomID"] >= 0) & (above["Ng"][:, 2] > 0)
     good_cells = good >= 2
-    solid = inside >= 2
+    candidates = np.nonzero(good_cells & (looks_up_at_back >= 2))[0]
+    solid = np.zeros(h * w, dtype=bool)
+    centres = np.stack([origin[0] + (cols.ravel()[candidates] + 0.5) * res,
+                        origin[1] + (rows.ravel()[candidates] + 0.5) * res], axis=1)
+    solid[candidates] = _enclosed(scene, centres, floor_z + 0.5 * config.agent_height)
     # Scans with inverted ceilings would look "inside" everywhere: ignore the rule then.
     if (good_cells & ~solid).sum() >= 0.2 * good_cells.sum():
         good_cells &= ~solid
     return good_cells.reshape(shape)
+
+
+def _enclosed(scene: Any, xy: np.ndarray, z: float) -> np.ndarray:
+    """Whether horizontal rays from ``(P, 2)`` points at height ``z`` all hit back faces.
+
+    Four rays (±x, ±y); a point is enclosed when every ray hits a surface and at
+    least three of them see its back (its normal points away from the point).
+    """
+    if len(xy) == 0:
+        return np.zeros(0, dtype=bool)
+    backs = np.zeros(len(xy), dtype=np.int32)
+    hits = np.zeros(len(xy), dtype=np.int32)
+    o = np.concatenate([xy, np.full((len(xy), 1), z)], axis=1).astype(np.float32)
+    for d in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        direction = np.tile(np.array([d[0], d[1], 0.0], dtype=np.float32), (len(xy), 1))
+        out = scene.run(o, direction, output=1)
+        hit = out["geomID"] >= 0
+        hits += hit
+        backs += hit & ((out["Ng"] * direction).sum(axis=1) > 0)
+    return (hits == 4) & (backs >= 3)
 
 
 def obstacle_cells(triangles: np.ndarray, floor_z: float, origin: np.ndarray,
