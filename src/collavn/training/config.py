@@ -244,7 +244,8 @@ def model_config_from_dict(d: dict[str, Any]) -> ModelConfig:
     """Rebuild a :class:`ModelConfig` from ``asdict`` output (lists → tuples)."""
     d = dict(d)
     d["map"] = MapConfig(**d["map"])
-    d["comm"] = CommConfig(**d["comm"])
+    comm_fields = {f.name for f in dataclasses.fields(CommConfig)}  # ``gate`` was retired
+    d["comm"] = CommConfig(**{k: v for k, v in d["comm"].items() if k in comm_fields})
     match = dict(d.get("goal_match", {}))  # absent in runs saved before it existed: off
     if "scales" in match:
         match["scales"] = tuple(match["scales"])
