@@ -174,3 +174,57 @@ def test_map_loss_values():
     assert map_loss(perfect, gt) < 1e-6
     fine = gt.repeat_interleave(2, -1).repeat_interleave(2, -2)  # 10 cm gt for a 20 cm model
     assert map_loss(perfect, fine) < 1e-6
+
+
+def test_map_feature_channels_learn_from_the_policy_loss():
+    from collavn.models import ActorCritic, CommConfig, ModelConfig
+    from collavn.training.config import PPOConfig
+    from collavn.training.map_training import map_parameters, policy_parameters
+    from collavn.training.ppo import ppo_loss
+    from collavn.training.rollout import Rollout
+
+    torch.manual_seed(0)
+    model = ActorCritic(ModelConfig.cpu(
+        panorama_shape=(3, 16, 64), goal_shape=(3, 16, 16), embed_dim=32, hidden_size=32,
+        critic_hidden_size=16,
+        map=MapConfig(size=32, resolution=0.2, local_size=16, feature_channels=4,
+                      feature_size=4, hidden=32, encoder_size=16, embed_dim=16),
+        comm=CommConfig(query_dim=16, key_dim=16, value_dim=24)))
+    builder = model.towers[0].map_builder
+    in_policy = {id(p) for p in policy_parameters(model)}
+    in_map = {id(p) for p in map_parameters(model)}
+    projection = list(builder.feature_proj.parameters())
+    assert all(id(p) in in_policy and id(p) not in in_map for p in projection)
+    assert all(id(p) in in_map for p in builder.predictor.parameters())
+
+    g = torch.Generator().manual_seed(0)
+    e, n, steps = 2, 2, 3
+
+    def obs():
+        return dict(
+            panorama=torch.randint(0, 256, (e, n, 3, 16, 64), generator=g, dtype=torch.uint8),
+            goal=torch.randint(0, 256, (e, n, 3, 16, 16), generator=g, dtype=torch.uint8),
+            pose_delta=torch.randn(e, n, 3, generator=g) * 0.3,
+            active=torch.ones(e, n, dtype=torch.bool))
+
+    state = model.initial_state(e, n)
+    first = obs()
+    rollout = Rollout.allocate(steps, first, state)
+    current, start = first, torch.ones(e, n, dtype=torch.bool)
+    for t in range(steps):
+        out = model.act(current, state, start)
+        rollout.insert(t, current, start, out.raw_action, out.log_prob, out.value)
+        state, current, start = out.state, obs(), torch.zeros_like(start)
+    advantages, returns = torch.randn(steps, e, n, generator=g), torch.randn(steps, e, n,
+                                                                             generator=g)
+    optimizer = torch.optim.Adam(policy_parameters(model), lr=1e-3)
+    before = [p.detach().clone() for p in builder.feature_proj.parameters()]
+    predictor = [p.detach().clone() for p in builder.predictor.parameters()]
+    loss, _ = ppo_loss(model, rollout, advantages, returns, PPOConfig())
+    optimizer.zero_grad()
+    loss.backward()
+    optimizer.step()
+    for old, new in zip(before, builder.feature_proj.parameters(), strict=True):
+        assert not torch.equal(old, new)
+    for old, new in zip(predictor, builder.predictor.parameters(), strict=True):
+        assert torch.equal(old, new)  # the predictor learns from map_loss only

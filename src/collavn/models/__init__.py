@@ -4,7 +4,13 @@ The models depend only on the observation contract of the envs (see
 :mod:`collavn.models.policy`), never on the simulator.
 """
 
-from collavn.models.communication import CommProjections, Message, match_and_select
+from collavn.models.communication import (
+    CommCounts,
+    CommProjections,
+    Message,
+    communication_counts,
+    match_and_select,
+)
 from collavn.models.config import CommConfig, MapConfig, MatchConfig, ModelConfig
 from collavn.models.encoders import (
     ResNet18Encoder,
@@ -18,9 +24,9 @@ from collavn.models.policy import ActorCritic, ActOutput, EvaluateOutput, Policy
 from collavn.models.state import AgentState
 
 __all__ = [
-    "ActOutput", "ActorCritic", "AgentState", "CommConfig", "CommProjections",
+    "ActOutput", "ActorCritic", "AgentState", "CommConfig", "CommCounts", "CommProjections",
     "EvaluateOutput", "GoalMatcher", "MapBuilder", "MapConfig", "MapEncoder", "MatchConfig",
-    "Message", "ModelConfig",
-    "PolicyStep", "ResNet18Encoder", "SmallCNNEncoder", "load_imagenet_weights",
-    "make_encoder", "map_loss", "match_and_select",
+    "Message", "ModelConfig", "PolicyStep", "ResNet18Encoder", "SmallCNNEncoder",
+    "communication_counts", "load_imagenet_weights", "make_encoder", "map_loss",
+    "match_and_select",
 ]

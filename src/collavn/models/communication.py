@@ -1,27 +1,44 @@
 """Memory-augmented handshake communication: request / match / select / store.
 
-Every step, for the agents ``n`` of one environment (all batched as ``(E, N, ...)``):
+Our reading of Sec. 4.2 of the paper, equation by equation, for the agents ``n`` of one
+environment (everything batched as ``(E, N, ...)``; ``d`` = ``key_dim``):
 
 * **request** — κ_n = F_key(x_n), υ_n = F_value(x_n) with x_n = [O_n, S_n];
-  μ_n = F_query(x_n, avgpool(υ_n^{past})); μ_n is broadcast. One-layer MLPs (affine for
-  μ and κ, affine + ReLU for υ).
+  μ_n = F_query(x_n, avgpool(υ_n^{past})). One-layer MLPs (affine for μ and κ, affine +
+  ReLU for υ). avgpool(υ^{past}) is the mean of the values held in memory *other than*
+  the current one (zeros if none). μ and κ, and x where they read it, are layer-normalised
+  (no weights): μᵀWκ/√d is then O(1) at initialisation and depends on the content of x
+  rather than on the shared positive offset of its ReLU features. Without this it starts
+  near 0, i.e. ψ ≈ σ(0) = ½, which at N = 2 *is* η: every gate would hang on the sign of
+  an input-independent 10⁻³.
 * **store** — (κ_n, υ_n) is written into the agent's private ring-buffer memory
-  ``(E, N, T, d)`` (``memory``: every ``store_interval`` steps, FIFO once ``T`` slots
-  are full; ``handshake``: never). The current entry is always matched, stored or not,
-  so a one-slot memory behaves exactly like ``handshake``; avgpool(υ^{past}) is the
-  mean of the values held in memory *other than* the current one (zeros if none).
-* **match** — z_{n,m,t'} = ψ(μ_n, κ_m^{t'}) = μ_nᵀ W κ_m^{t'} / √d_k over every entry of
-  every active agent m (itself included). Normalisation: the agent score is
-  s_{n,m} = softmax_m(log mean_{t'} exp z_{n,m,t'}), so Σ_m s_{n,m} = 1 over the active
-  agents and η = 1/N means "above a uniform share"; υ̂_{n,m} = Σ_{t'} softmax_{t'}(z) υ_m^{t'}
-  (the paper's mean_{t'} s·υ with the agent score factored out, see below).
-* **select** — Γ(s) = s·[s > η] (hard) or s·σ((s − η)/τ) (soft); the self gate
-  o_n = [s_{n,n} > η] (or σ(...)) decides *when*: ω_n = o_n Σ_m Γ(s_{n,m}) υ̂_{n,m}, so
-  no message is formed when s_{n,n} ≤ η, and a supporter with s_{n,m} ≤ η sends nothing.
+  ``(E, N, T, d)`` (``memory``: every ``store_interval`` steps, FIFO once ``T`` slots are
+  full; ``handshake``: never). The current entry is always matched, stored or not, so a
+  one-slot memory behaves exactly like ``handshake``.
+* **match** — every (query, key entry) pair is scored on its own, in [0, 1]:
+  ψ(μ_n, κ_m^{t'}) = σ(μ_nᵀ W κ_m^{t'} / √d + b), W and b learnable (one ψ per
+  requester's weights). Over the entries t' of agent m (itself included):
+  s_{n,m} = mean_{t'} ψ(μ_n, κ_m^{t'}) and υ̂_{n,m} = mean_{t'} ψ(μ_n, κ_m^{t'}) υ_m^{t'}.
+  No softmax across agents: one pair's score never depends on another pair's, so at
+  every N any pair can pass the threshold or stay below it.
+* **select** — Γ(s, η) = s·[s > η] with η = 1/N, N the *active* agents of the
+  environment (``CommConfig.threshold`` replaces it when set). A lone agent (its
+  teammates finished, or N = 1) uses η = ½: with η = 1 no score in [0, 1] could pass
+  and it could never read its own memory. The self gate o_n = [s_{n,n} > η] decides
+  *when*; the supporter gates [s_{n,m} > η] decide *who*:
 
-Bandwidth per sender and step (``bytes_per_float`` each): its query (``query_dim``)
-when active, one score back to every other active agent, and its value (``value_dim``)
-over every link selected by the hard rule (also reported in soft mode).
+      ω_n = o_n · (s_{n,n} υ̂_{n,n} + Σ_{m≠n} Γ(s_{n,m}, η) υ̂_{n,m}),
+
+  so ω_n = 0 when Γ(s_{n,n}) = 0.
+* **gradients** — the gate is the same hard indicator in ``train()`` and ``eval()``
+  (same ω); its backward pass is the gradient of σ((s − η)/temperature)
+  (straight-through), so the loss reaches F_query, F_key, ψ and F_value through closed
+  gates too.
+
+Bandwidth per agent and step (``bytes_per_float`` each): its query (``query_dim``) when
+its own gate opens (s_{n,n} needs only its own memory, so a silent agent broadcasts
+nothing); one score back to every other active agent that broadcast a query; and its
+value υ̂ (``value_dim``) over every link on which it was selected.
 """
 
 from __future__ import annotations
@@ -30,11 +47,10 @@ import math
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from collavn.models.config import CommConfig
-
-_NEG = -1e9
 
 
 class CommProjections(nn.Module):
@@ -47,17 +63,24 @@ class CommProjections(nn.Module):
         self.value = nn.Sequential(nn.Linear(input_size, cfg.value_dim), nn.ReLU())
         self.query = nn.Linear(input_size + cfg.value_dim, cfg.query_dim)
         self.psi = nn.Linear(cfg.query_dim, cfg.key_dim, bias=False)
+        self.psi_bias = nn.Parameter(torch.zeros(()))
         if cfg.query_dim == cfg.key_dim:
             nn.init.eye_(self.psi.weight)
         self.output_size = cfg.value_dim
 
     def key_value(self, x: Tensor) -> tuple[Tensor, Tensor]:
-        """``(B, input_size)`` → κ ``(B, key_dim)``, υ ``(B, value_dim)``."""
-        return self.key(x), self.value(x)
+        """``(B, input_size)`` → κ ``(B, key_dim)`` (normalised), υ ``(B, value_dim)``."""
+        return _normalise(self.key(_normalise(x))), self.value(x)
 
-    def query_psi(self, x: Tensor, pooled: Tensor) -> Tensor:
-        """``(B, input_size)``, ``(B, value_dim)`` → Wᵀμ ``(B, key_dim)`` (ψ applied)."""
-        return self.psi(self.query(torch.cat([x, pooled], dim=1)))
+    def query_psi(self, x: Tensor, pooled: Tensor) -> tuple[Tensor, Tensor]:
+        """``(B, input_size)``, ``(B, value_dim)`` → Wᵀμ ``(B, key_dim)``, b ``(B,)``."""
+        query = _normalise(self.query(torch.cat([_normalise(x), pooled], dim=1)))
+        return self.psi(query), self.psi_bias.expand(query.shape[0])
+
+
+def _normalise(x: Tensor) -> Tensor:
+    """Zero mean, unit variance over the last dimension (a layer norm without weights)."""
+    return F.layer_norm(x, x.shape[-1:])
 
 
 @dataclass(frozen=True)
@@ -66,17 +89,55 @@ class Message:
 
     Attributes:
         omega: ``(E, N, value_dim)`` the message ω given to the policy and the critic.
-        scores: ``(E, N, N)`` normalised scores s_{n,m} (rows: requester n).
-        gates: ``(E, N, N)`` Γ(s) times the requester's self gate (what weights υ̂).
-        links: ``(E, N, N)`` bool, m sends its value to n (hard rule, m ≠ n).
+        scores: ``(E, N, N)`` agent scores s_{n,m} in [0, 1] (rows: requester n; zero
+            where n or m is inactive).
+        gates: ``(E, N, N)`` the weights of υ̂_{n,m} in ω_n: o_n·s_{n,n} on the
+            diagonal, o_n·Γ(s_{n,m}) elsewhere (carry the straight-through gradient).
+        self_open: ``(E, N)`` bool, the agent's own gate opened (Γ(s_{n,n}) > 0): *when*.
+        links: ``(E, N, N)`` bool, ``links[e, n, m]``: m's value entered ω_n (m ≠ n).
         bytes_sent: ``(E, N)`` bytes transmitted by each agent this step.
     """
 
     omega: Tensor
     scores: Tensor
     gates: Tensor
+    self_open: Tensor
     links: Tensor
     bytes_sent: Tensor
+
+
+@dataclass(frozen=True)
+class CommCounts:
+    """Per agent-step communication statistics (see :func:`communication_counts`).
+
+    Attributes:
+        received: ``(E, N)`` bool, at least one teammate's value entered ω_n.
+        when: ``(E, N)`` bool, the agent's own gate opened.
+        bytes: ``(E, N)`` float, bytes the agent sent.
+    """
+
+    received: Tensor
+    when: Tensor
+    bytes: Tensor
+
+
+def communication_counts(message: Message, active: Tensor) -> CommCounts:
+    """Who received, who opened its gate, and the traffic, for every agent-step.
+
+    Rates over active agent-steps are ``counts.received[active].float().mean()`` (and
+    so on); inactive agents count as neither receiving nor sending.
+
+    Args:
+        message: One communication round (ω of shape ``(E, N, value_dim)``).
+        active: ``(E, N)`` bool, the agents that acted this step.
+
+    Returns:
+        ``received``, ``when`` ``(E, N)`` bool and ``bytes`` ``(E, N)`` float.
+    """
+    active = active.bool()
+    received = message.links.any(dim=-1) & message.self_open & active
+    when = message.self_open & active
+    return CommCounts(received, when, message.bytes_sent * active)
 
 
 def memory_mask(count: Tensor, slots: int) -> Tensor:
@@ -117,52 +178,82 @@ def pooled_past_values(values: Tensor, mask: Tensor) -> Tensor:
     return total / w.sum(dim=2, keepdim=True).clamp(min=1.0)
 
 
-def match_and_select(query_psi: Tensor, keys: Tensor, values: Tensor, entry_mask: Tensor,
-                     active: Tensor, cfg: CommConfig, hard: bool) -> Message:
+def selection_threshold(active: Tensor, cfg: CommConfig) -> Tensor:
+    """η per environment, ``(E, N)`` bool → ``(E,)``: ``cfg.threshold`` or 1/max(N, 2)."""
+    if cfg.threshold is not None:
+        return torch.full(active.shape[:1], cfg.threshold, device=active.device)
+    return 1.0 / active.sum(dim=1).clamp(min=2).float()
+
+
+def straight_through_gate(scores: Tensor, eta: Tensor, temperature: float) -> Tensor:
+    """Forward: the indicator [s > η]; backward: the gradient of σ((s − η)/temperature).
+
+    Args:
+        scores: ``(E, N, N)`` agent scores.
+        eta: ``(E, 1, 1)`` thresholds.
+        temperature: Width of the surrogate sigmoid.
+    """
+    soft = torch.sigmoid((scores - eta) / temperature)
+    return (scores > eta).to(scores.dtype) + (soft - soft.detach())
+
+
+def match_scores(query_psi: Tensor, bias: Tensor, keys: Tensor, values: Tensor,
+                 entry_mask: Tensor, pair_active: Tensor) -> tuple[Tensor, Tensor]:
+    """ψ over every (requester, entry) pair, averaged over each agent's entries.
+
+    Args:
+        query_psi: ``(E, N, dk)`` queries with ψ's matrix applied (Wᵀμ).
+        bias: ``(E, N)`` ψ's bias b (of the requester's weights).
+        keys: ``(E, N, L, dk)`` entries of each agent (memory + current).
+        values: ``(E, N, L, dv)``.
+        entry_mask: ``(E, N, L)`` bool, entry present.
+        pair_active: ``(E, N, N)`` bool, requester and supporter both active.
+
+    Returns:
+        s ``(E, N, N)`` = mean_{t'} ψ and υ̂ ``(E, N, N, dv)`` = mean_{t'} ψ·υ.
+    """
+    z = torch.einsum("end,emld->enml", query_psi, keys) / math.sqrt(keys.shape[-1])
+    psi = torch.sigmoid(z + bias[:, :, None, None])
+    weight = psi * entry_mask.unsqueeze(1).to(psi.dtype)  # (E, N, M, L)
+    n_entries = entry_mask.sum(dim=-1).clamp(min=1).to(psi.dtype).unsqueeze(1)  # (E, 1, M)
+    weight = weight / n_entries.unsqueeze(-1) * pair_active.unsqueeze(-1).to(psi.dtype)
+    return weight.sum(dim=-1), torch.einsum("enml,emld->enmd", weight, values)
+
+
+def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor, values: Tensor,
+                     entry_mask: Tensor, active: Tensor, cfg: CommConfig) -> Message:
     """Match every requester against every active agent's entries and form ω.
 
     Args:
         query_psi: ``(E, N, dk)`` queries with ψ's matrix applied (Wᵀμ).
+        bias: ``(E, N)`` ψ's bias b (of the requester's weights).
         keys: ``(E, N, L, dk)`` entries of each agent (memory + current).
         values: ``(E, N, L, dv)``.
         entry_mask: ``(E, N, L)`` bool, entry present.
         active: ``(E, N)`` bool; inactive agents neither request nor support.
         cfg: Communication settings (threshold, temperature, sizes).
-        hard: Use the hard gate (evaluation) instead of the soft one.
     """
-    n_agents = keys.shape[1]
-    z = torch.einsum("end,emld->enml", query_psi, keys) / math.sqrt(keys.shape[-1])
-    valid = (entry_mask & active.unsqueeze(-1)).unsqueeze(1)  # (E, 1, M, L)
-    z = z.masked_fill(~valid, _NEG)
-    n_entries = valid.sum(dim=-1).clamp(min=1).to(z.dtype)  # (E, 1, M)
-    agent_logit = torch.logsumexp(z, dim=-1) - torch.log(n_entries)
-    agent_logit = agent_logit.masked_fill(~active.unsqueeze(1), _NEG)
+    eye = torch.eye(keys.shape[1], dtype=torch.bool, device=keys.device)
     pair_active = active.unsqueeze(2) & active.unsqueeze(1)
-    scores = torch.softmax(agent_logit, dim=-1) * pair_active  # (E, N, M)
-    within = torch.softmax(z, dim=-1)  # (E, N, M, L)
-    v_hat = torch.einsum("enml,emld->enmd", within, values)
+    scores, v_hat = match_scores(query_psi, bias, keys, values, entry_mask, pair_active)
+    eta = selection_threshold(active, cfg).to(scores.dtype).view(-1, 1, 1)
+    opened = straight_through_gate(scores, eta, cfg.temperature)
+    self_gate = torch.diagonal(opened, dim1=1, dim2=2)  # o_n: the *when* decision
+    gates = scores * torch.where(eye, torch.ones_like(opened), opened)
+    gates = gates * self_gate.unsqueeze(-1)
+    omega = torch.einsum("enm,enmd->end", gates, v_hat)
 
-    n_active = active.sum(dim=1).clamp(min=1).to(z.dtype)
-    eta = (torch.full_like(n_active, cfg.threshold) if cfg.threshold is not None
-           else 1.0 / n_active).view(-1, 1, 1)
-    above = scores > eta
-    soft_open = torch.sigmoid((scores - eta) / cfg.temperature)
-    opened = above.to(z.dtype) if hard else soft_open
-    gate = scores * opened
-    self_open = torch.diagonal(opened, dim1=1, dim2=2)  # o_n: the *when* decision
-    eye = torch.eye(n_agents, dtype=torch.bool, device=keys.device)
-    gate = gate * self_open.unsqueeze(-1)
-    omega = torch.einsum("enm,enmd->end", gate, v_hat)
-
-    self_above = torch.diagonal(above, dim1=1, dim2=2)
-    links = above & self_above.unsqueeze(-1) & pair_active & ~eye
-    return Message(omega, scores, gate, links, _bytes_sent(links, active, cfg))
+    above = (scores > eta) & pair_active
+    self_open = torch.diagonal(above, dim1=1, dim2=2)
+    links = above & self_open.unsqueeze(-1) & ~eye
+    return Message(omega, scores, gates, self_open, links,
+                   _bytes_sent(links, self_open, active, cfg))
 
 
-def _bytes_sent(links: Tensor, active: Tensor, cfg: CommConfig) -> Tensor:
+def _bytes_sent(links: Tensor, self_open: Tensor, active: Tensor, cfg: CommConfig) -> Tensor:
     """``(E, N)`` bytes each agent transmits: query + scores + values over its links."""
-    n_active = active.sum(dim=1, keepdim=True)
-    floats = active * (cfg.query_dim + (n_active - 1).clamp(min=0))
+    requests = self_open.sum(dim=1, keepdim=True) - self_open.long()  # other requesters
+    floats = self_open * cfg.query_dim + active * requests
     floats = floats + links.sum(dim=1) * cfg.value_dim  # column m: links where m sends
     return (floats * cfg.bytes_per_float).to(torch.float32)
 
@@ -172,4 +263,5 @@ def silent_message(active: Tensor, value_dim: int, dtype: torch.dtype) -> Messag
     e, n = active.shape
     zeros = torch.zeros(e, n, n, dtype=dtype, device=active.device)
     return Message(torch.zeros(e, n, value_dim, dtype=dtype, device=active.device), zeros,
-                   zeros, zeros.bool(), torch.zeros(e, n, device=active.device))
+                   zeros, torch.zeros_like(active, dtype=torch.bool), zeros.bool(),
+                   torch.zeros(e, n, device=active.device))

@@ -14,7 +14,6 @@ import tyro
 
 EncoderKind = Literal["resnet18", "small"]
 CommVariant = Literal["none", "handshake", "memory"]
-GateMode = Literal["auto", "soft", "hard"]
 
 
 @dataclass(frozen=True)
@@ -38,8 +37,9 @@ class MapConfig:
         encoder_size: Cells per side of the egocentric window the map encoder sees;
             the window covers the whole map extent, rotated so the heading is up.
         embed_dim: Size of the map vector given to the policy.
-        detach: Stop policy gradients at the map (the paper trains F_map only with its
-            supervised loss).
+        detach: Stop policy gradients at the local-map predictor (the paper trains the
+            occupancy part of F_map only with its supervised loss). The visual-feature
+            projection after it always learns from the policy loss.
     """
 
     size: int = 384
@@ -77,11 +77,10 @@ class CommConfig:
             (T = 80); a smaller number gives a FIFO of fixed capacity.
         store_interval: Store one (κ, υ) every this many steps (1 = every step).
         threshold: Selection threshold η; ``None`` means 1/N with N the active agents
-            of the environment.
-        gate: ``hard`` zeroes scores ≤ η; ``soft`` multiplies them by
-            sigmoid((s − η)/temperature) so gradients flow; ``auto`` is soft in
-            ``train()`` mode and hard in ``eval()`` mode.
-        temperature: Width of the soft gate.
+            of the environment (½ for a lone agent), else a fixed value in [0, 1).
+        temperature: Width of the sigmoid σ((s − η)/temperature) whose gradient the
+            hard gate passes back (straight-through). The gate itself is the same hard
+            indicator [s > η] in ``train()`` and ``eval()`` mode: the same ω in both.
         bytes_per_float: Wire size of one transmitted number (float32 = 4).
     """
 
@@ -92,13 +91,16 @@ class CommConfig:
     memory_slots: int = 80
     store_interval: int = 1
     threshold: float | None = None
-    gate: GateMode = "auto"
     temperature: float = 0.05
     bytes_per_float: int = 4
 
     def __post_init__(self) -> None:
         if self.memory_slots < 1 or self.store_interval < 1:
             raise ValueError("memory_slots and store_interval must be >= 1")
+        if self.threshold is not None and not 0.0 <= self.threshold < 1.0:
+            raise ValueError(f"threshold must be in [0, 1) (scores are), got {self.threshold}")
+        if self.temperature <= 0:
+            raise ValueError(f"temperature must be > 0, got {self.temperature}")
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,14 @@ trajectory, current location) plus ``feature_channels`` on a coarse ``feature_si
 grid over the same extent. Fusion: element-wise max for obstacle/explored/trajectory;
 features are blended towards the current visual feature by the fraction of each coarse
 cell seen at this step.
+
+Who trains what: the local-map predictor (trunk and occupancy decoder) learns only from
+the supervised :func:`map_loss` (the policy's gradients stop at its outputs when
+``MapConfig.detach``). The visual-feature channels come from ``MapBuilder.feature_proj``
+applied to the (detached) predictor trunk; the map loss has no target for them, so they
+learn from the **policy loss** (PPO or imitation): their gradient flows through the
+fused feature grid and :class:`MapEncoder` into the actor and critic, and the policy
+optimizer holds ``feature_proj``'s weights (see ``collavn.training.map_training``).
 """
 
 from __future__ import annotations
@@ -200,7 +208,11 @@ class MapStep:
 
 
 class MapBuilder(nn.Module):
-    """F_map: predict the local patch, register it with the pose, fuse it into S_{t-1}."""
+    """F_map: predict the local patch, register it with the pose, fuse it into S_{t-1}.
+
+    ``predictor`` is trained by :func:`map_loss`; ``feature_proj`` (trunk features →
+    ``feature_channels``) by the policy loss.
+    """
 
     def __init__(self, cfg: MapConfig, panorama_shape: tuple[int, int, int]) -> None:
         super().__init__()
@@ -224,9 +236,9 @@ class MapBuilder(nn.Module):
         """
         logits, hidden = self.predictor(panorama, depth)
         probs = torch.sigmoid(logits)
-        visual = self.feature_proj(hidden)
-        if self.cfg.detach:
-            probs, visual = probs.detach(), visual.detach()
+        if self.cfg.detach:  # the predictor learns from map_loss only
+            probs, hidden = probs.detach(), hidden.detach()
+        visual = self.feature_proj(hidden)  # learns from the policy loss
         new_pose = integrate_pose(pose, pose_delta)
         new_pose = torch.where(first.unsqueeze(1), torch.zeros_like(new_pose), new_pose)
         grid_t, feat_t = self.fuse(probs, visual, new_pose, grid, features)

@@ -254,12 +254,11 @@ class ActorCritic(nn.Module):
             state.mem_keys, state.mem_values, state.mem_count, key, value, write)
         stored = memory_mask(count, keys.shape[2])
         pooled = pooled_past_values(values, stored & ~slot)
-        query = self._dispatch(lambda t, x_, p_: (t.comm.query_psi(x_, p_),), x, pooled)[0]
+        query, bias = self._dispatch(lambda t, x_, p_: t.comm.query_psi(x_, p_), x, pooled)
         entries_k = torch.cat([keys, key.unsqueeze(2)], dim=2)
         entries_v = torch.cat([values, value.unsqueeze(2)], dim=2)
         entry_mask = torch.cat([stored, ~write.unsqueeze(-1)], dim=2)
-        hard = cfg.gate == "hard" or (cfg.gate == "auto" and not self.training)
-        msg = match_and_select(query, entries_k, entries_v, entry_mask, active, cfg, hard)
+        msg = match_and_select(query, bias, entries_k, entries_v, entry_mask, active, cfg)
         return msg, keys, values, count
 
     def _dispatch(self, fn: Callable[..., tuple[Tensor, ...]],

@@ -3,8 +3,9 @@
 Every env step pushes each active agent's (panorama, depth, ground-truth local map) into
 a FIFO of ``fifo_size`` samples; every ``every`` steps the local-map predictor takes
 ``updates`` Adam steps on random batches of ``batch_size`` from it (paper: 5,000
-samples, 10 updates of batch 64 per step). Only the map builder's weights are trained
-here; the policy optimizer never touches them.
+samples, 10 updates of batch 64 per step). Only the local-map predictor's weights are
+trained here; the policy optimizer never touches them. The map builder's visual-feature
+projection (``feature_proj``) has no supervised target: it is a policy parameter.
 """
 
 from __future__ import annotations
@@ -22,13 +23,13 @@ from collavn.training.config import MapTrainConfig
 
 
 def map_parameters(model: ActorCritic) -> Iterator[nn.Parameter]:
-    """The weights of every tower's map builder."""
+    """The weights of every tower's local-map predictor (trained by :func:`map_loss`)."""
     for tower in model.towers:
-        yield from cast(AgentTower, tower).map_builder.parameters()
+        yield from cast(AgentTower, tower).map_builder.predictor.parameters()
 
 
 def policy_parameters(model: ActorCritic) -> list[nn.Parameter]:
-    """Every weight except the map builders' (those learn from :class:`MapTrainer`)."""
+    """Every weight except the map predictors' (those learn from :class:`MapTrainer`)."""
     mapped = {id(p) for p in map_parameters(model)}
     return [p for p in model.parameters() if id(p) not in mapped]
 

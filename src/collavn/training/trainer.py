@@ -95,7 +95,7 @@ def env_config(cfg: TrainConfig) -> EnvConfig:
 
 
 def set_train_mode(model: nn.Module) -> None:
-    """``train()`` (soft communication gates) with batch-norm statistics frozen.
+    """``train()`` with batch-norm statistics frozen.
 
     Frozen statistics keep log-probabilities at collection and at update equal (PPO's
     ratio is 1 before the first step) whatever the batch composition.
