@@ -121,3 +121,44 @@ def test_demo_runs_end_to_end(tmp_path, capsys):
     assert (tmp_path / "scene_map.png").is_file()
     assert (tmp_path / "oracle" / "trajectories.png").is_file()
     assert list((tmp_path / "oracle").glob("*.gif"))
+
+
+def _untrained_checkpoint(path, method: str, seed: int = 0):
+    import sys
+
+    import torch
+
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+    from training_fixtures import tiny_config
+
+    from collavn.models.policy import ActorCritic
+    from collavn.policies.checkpoint import save_checkpoint
+
+    cfg = tiny_config(method).with_env(panorama_width=32, panorama_height=8, goal_size=8)
+    torch.manual_seed(seed)
+    save_checkpoint(path, {"config": cfg.to_dict(), "iteration": 0,
+                           "model": ActorCritic(cfg.model).state_dict()})
+    return path
+
+
+def test_evaluation_reports_communication_per_method(door_scene, tmp_path, capsys):
+    scene_file = tmp_path / "door.npz"
+    door_scene.save(scene_file)
+    data = tmp_path / "data"
+    assert main(["dataset", "generate", "--split", "val", "--episodes", "4", "--scenes",
+                 str(scene_file), "--out", str(data), "--quiet"]) == 0
+    small = ["--panorama-width", "32", "--panorama-height", "8", "--goal-size", "8"]
+    rates = {}
+    for name in ("random", "oracle", "ours", "no-com"):
+        policy = name if name in ("random", "oracle") else str(
+            _untrained_checkpoint(tmp_path / f"{name}.pt", name))
+        capsys.readouterr()
+        assert main(["evaluate", "--policy", policy, "--dataset", str(data), "--out",
+                     str(tmp_path / name), "--json", *small]) == 0
+        rates[name] = json.loads(capsys.readouterr().out)[policy]["communication"]
+        assert "comm. received" in (tmp_path / name / "metrics.md").read_text()
+    zero = {"received_rate": 0.0, "when_rate": 0.0, "bytes_per_agent_step": 0.0}
+    assert rates["random"] == rates["oracle"] == rates["no-com"] == zero
+    assert 0.0 < rates["ours"]["received_rate"] < 1.0
+    assert rates["ours"]["received_rate"] <= rates["ours"]["when_rate"]
+    assert rates["ours"]["bytes_per_agent_step"] > 0

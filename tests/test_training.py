@@ -154,6 +154,36 @@ def test_ppo_loss_goes_down_on_a_fixed_batch():
     assert np.isfinite(stats["approx_kl"])
 
 
+@pytest.mark.parametrize("method", ["ours", "no-mem"])
+def test_ppo_scores_a_rollout_with_the_model_that_collected_it(method):
+    from collavn.training.map_training import map_parameters
+    from collavn.training.trainer import learn
+
+    cfg, run, rollout = _fixed_batch(method)
+    assert run.maps.owed > 0  # map updates are owed, not yet taken
+    with torch.no_grad():
+        out = run.model.evaluate_actions(rollout.obs, rollout.initial_state,
+                                         rollout.episode_start, rollout.raw_actions)
+    assert torch.equal(out.log_prob, rollout.log_probs)  # first epoch: ratio exactly 1
+    torch.testing.assert_close(out.value, rollout.values, rtol=0, atol=0)
+    before = [p.detach().clone() for p in map_parameters(run.model)]
+    learn(run, rollout)
+    assert run.maps.owed == 0 and np.isfinite(run.maps.last_loss)
+    assert any(not torch.equal(a, p) for a, p in zip(before, map_parameters(run.model),
+                                                    strict=True))
+
+
+def test_training_logs_communication_rates():
+    _, run, _ = _fixed_batch("ours")
+    _, stats = collect_rollout(run)
+    assert 0.0 <= stats["comm/received_rate"] <= stats["comm/when_rate"] <= 1.0
+    assert stats["comm/bytes_per_agent_step"] > 0
+    _, run, _ = _fixed_batch("no-com")
+    _, stats = collect_rollout(run)
+    assert (stats["comm/received_rate"], stats["comm/when_rate"],
+            stats["comm/bytes_per_agent_step"]) == (0.0, 0.0, 0.0)
+
+
 def test_critic_warmup_moves_only_the_critic_and_lowers_the_value_loss(capsys):
     cfg, run, rollout = _fixed_batch("no-com")
     adv, ret = compute_gae(rollout.rewards, rollout.values, rollout.terminated,

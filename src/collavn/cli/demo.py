@@ -55,10 +55,11 @@ class Demo:
         for policy in ("oracle", "random"):
             cfg = EvalConfig(policy=policy, num_envs=4, seed=self.seed, env=base,
                              keep_trajectories=3 * self.episodes)
-            recs, trajs = run_evaluation(cfg, dataset)
-            write_results(self.out / policy, {policy: recs}, trajs)
-            records[policy] = recs
-            pictures = draw_all(trajs, self.out / policy, gifs=1 if policy == "oracle" else 0,
+            result = run_evaluation(cfg, dataset)
+            write_results(self.out / policy, {policy: result})
+            records[policy] = result.records
+            pictures = draw_all(result.trajectories, self.out / policy,
+                                gifs=1 if policy == "oracle" else 0,
                                 panorama_width=self.panorama_width)
             print(f"{policy}: " + ", ".join(str(p) for p in pictures))
         table = metrics_table(records)

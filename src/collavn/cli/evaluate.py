@@ -10,7 +10,6 @@ from collavn.evaluation.benchmark import (
     EvalConfig,
     load_dataset,
     run_evaluation,
-    summary_json,
     write_results,
 )
 
@@ -24,9 +23,9 @@ class Evaluate(EvalConfig):
 
     def run(self) -> int:
         """Evaluate, write files, print the table."""
-        records, trajectories = run_evaluation(self, load_dataset(self))
-        if not records:
+        result = run_evaluation(self, load_dataset(self))
+        if not result.records:
             raise CollavnError(f"no {self.difficulty} episodes in {self.dataset}")
-        table = write_results(self.out, {self.policy: records}, trajectories)
-        print(json.dumps(summary_json(table), indent=2) if self.json else table.to_markdown())
+        report = write_results(self.out, {self.policy: result})
+        print(json.dumps(report.to_json(), indent=2) if self.json else report.to_markdown())
         return 0

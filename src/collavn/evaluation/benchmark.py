@@ -8,7 +8,7 @@ brings its own image sizes.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import json
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal, cast
@@ -16,8 +16,13 @@ from typing import Any, Literal, cast
 from collavn.datasets.storage import Dataset
 from collavn.envs.config import EnvConfig
 from collavn.errors import CollavnError
-from collavn.evaluation.runner import Trajectory, evaluate, write_records, write_trajectories
-from collavn.metrics import AgentRecord, MetricsTable, metrics_table
+from collavn.evaluation.runner import (
+    EvaluationResult,
+    evaluate,
+    write_records,
+    write_trajectories,
+)
+from collavn.metrics import MetricsTable, metrics_table
 from collavn.policies import make_policy
 from collavn.scenes import load_scene
 from collavn.tasks import TaskName
@@ -56,13 +61,11 @@ class EvalConfig:
     """Sensors (task and agents come from the dataset; checkpoints bring their sizes)."""
 
 
-def run_evaluation(cfg: EvalConfig, dataset: Dataset
-                   ) -> tuple[list[AgentRecord], list[Trajectory]]:
+def run_evaluation(cfg: EvalConfig, dataset: Dataset) -> EvaluationResult:
     """Evaluate ``cfg.policy`` on every file of ``dataset``; records in file order."""
     from rich.progress import Progress
 
-    records: list[AgentRecord] = []
-    trajectories: list[Trajectory] = []
+    total = EvaluationResult()
     with Progress(disable=not cfg.progress, transient=True) as bar:
         selected = {name: [e for e in content.episodes
                            if cfg.difficulty in (None, e.difficulty)]
@@ -78,11 +81,10 @@ def run_evaluation(cfg: EvalConfig, dataset: Dataset
                                             cfg.stochastic)
             env = replace(cfg.env, task=cast(TaskName, content.task),
                           num_agents=content.num_agents, **overrides)
-            result = evaluate(policy, scene, episodes, env, cfg.num_envs, cfg.seed,
-                              cfg.keep_trajectories, on_episode=lambda k: bar.advance(task, k))
-            records += result.records
-            trajectories += result.trajectories
-    return records, trajectories
+            total.add(evaluate(policy, scene, episodes, env, cfg.num_envs, cfg.seed,
+                               cfg.keep_trajectories,
+                               on_episode=lambda k: bar.advance(task, k)))
+    return total
 
 
 def load_dataset(cfg: EvalConfig) -> Dataset:
@@ -94,21 +96,48 @@ def load_dataset(cfg: EvalConfig) -> Dataset:
     return dataset
 
 
-def write_results(out: Path, records: dict[str, list[AgentRecord]],
-                  trajectories: Sequence[Trajectory]) -> MetricsTable:
-    """Write records (one file per policy), trajectories and the metrics table."""
+@dataclass(frozen=True)
+class Report:
+    """The paper's table of one or more methods, with their communication.
+
+    Attributes:
+        table: SR / DTS / SPL / SSR by difficulty, one row per method.
+        communication: Per method: ``received_rate``, ``when_rate``,
+            ``bytes_per_agent_step`` (see :class:`~collavn.policies.base.CommStats`).
+    """
+
+    table: MetricsTable
+    communication: dict[str, dict[str, float]]
+
+    def to_markdown(self) -> str:
+        """The metrics table, then one line of communication per method."""
+        lines = [self.table.to_markdown(), "",
+                 "| method | comm. received | comm. when | bytes / agent-step |",
+                 "|---|---:|---:|---:|"]
+        for name, c in self.communication.items():
+            lines.append(f"| {name} | {c['received_rate']:.3f} | {c['when_rate']:.3f} | "
+                         f"{c['bytes_per_agent_step']:.1f} |")
+        return "\n".join(lines)
+
+    def to_json(self) -> dict[str, Any]:
+        """``{method: {"metrics", "counts", "communication"}}``, for ``--json``."""
+        return {row.method: {"metrics": row.groups, "counts": row.counts,
+                             "communication": self.communication.get(row.method, {})}
+                for row in self.table.rows}
+
+
+def write_results(out: Path, results: dict[str, EvaluationResult]) -> Report:
+    """Write records (one file per policy), trajectories, the table and communication."""
     out.mkdir(parents=True, exist_ok=True)
-    for name, recs in records.items():
-        stem = "records" if len(records) == 1 else f"records_{Path(name).stem}"
-        write_records(out / f"{stem}.jsonl", recs)
-    write_trajectories(out / "trajectories.jsonl", trajectories)
-    table = metrics_table(records)
-    (out / "metrics.md").write_text(table.to_markdown() + "\n")
-    (out / "metrics.tex").write_text(table.to_latex() + "\n")
-    (out / "metrics.csv").write_text(table.to_csv())
-    return table
-
-
-def summary_json(table: MetricsTable) -> dict[str, Any]:
-    """``{method: {"metrics": …, "counts": …}}`` of a table, for ``--json``."""
-    return {row.method: {"metrics": row.groups, "counts": row.counts} for row in table.rows}
+    for name, result in results.items():
+        stem = "records" if len(results) == 1 else f"records_{Path(name).stem}"
+        write_records(out / f"{stem}.jsonl", result.records)
+    write_trajectories(out / "trajectories.jsonl",
+                       [t for r in results.values() for t in r.trajectories])
+    report = Report(metrics_table({k: r.records for k, r in results.items()}),
+                    {k: r.communication.rates() for k, r in results.items()})
+    (out / "metrics.md").write_text(report.to_markdown() + "\n")
+    (out / "metrics.tex").write_text(report.table.to_latex() + "\n")
+    (out / "metrics.csv").write_text(report.table.to_csv())
+    (out / "metrics.json").write_text(json.dumps(report.to_json(), indent=2) + "\n")
+    return report

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +14,7 @@ from collavn.datasets.episode import Episode
 from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv
 from collavn.metrics import AgentRecord
-from collavn.policies.base import Policy
+from collavn.policies.base import CommStats, Policy
 from collavn.scenes.scene import Scene
 
 
@@ -54,10 +54,17 @@ class Trajectory:
 
 @dataclass
 class EvaluationResult:
-    """Records of every agent of every episode, and some trajectories."""
+    """Records of every agent of every episode, some trajectories, the communication."""
 
-    records: list[AgentRecord]
-    trajectories: list[Trajectory]
+    records: list[AgentRecord] = field(default_factory=list)
+    trajectories: list[Trajectory] = field(default_factory=list)
+    communication: CommStats = field(default_factory=CommStats)
+
+    def add(self, other: EvaluationResult) -> None:
+        """Append ``other``'s records and trajectories and add its communication."""
+        self.records += other.records
+        self.trajectories += other.trajectories
+        self.communication.add(other.communication)
 
 
 def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: EnvConfig,
@@ -113,7 +120,7 @@ def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: 
             if on_episode is not None and ep.episode_id in fresh:
                 on_episode(1)
     records = [r for ep in episodes for r in sorted(done[ep.episode_id], key=lambda r: r.agent)]
-    return EvaluationResult(records, trajectories)
+    return EvaluationResult(records, trajectories, policy.communication())
 
 
 def write_records(path: str | Path, records: Sequence[AgentRecord]) -> Path:

@@ -64,8 +64,7 @@ class CommProjections(nn.Module):
         self.query = nn.Linear(input_size + cfg.value_dim, cfg.query_dim)
         self.psi = nn.Linear(cfg.query_dim, cfg.key_dim, bias=False)
         self.psi_bias = nn.Parameter(torch.zeros(()))
-        if cfg.query_dim == cfg.key_dim:
-            nn.init.eye_(self.psi.weight)
+        nn.init.normal_(self.psi.weight, std=cfg.key_dim ** -0.5)  # ψ logits ~ N(0, 1)
         self.output_size = cfg.value_dim
 
     def key_value(self, x: Tensor) -> tuple[Tensor, Tensor]:

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from collavn.errors import CollavnError
-from collavn.policies.base import Policy, RandomPolicy
+from collavn.policies.base import CommStats, Policy, RandomPolicy
 from collavn.policies.checkpoint import CheckpointPolicy, load_policy
 from collavn.policies.oracle import OraclePolicy
 from collavn.scenes.scene import Scene
@@ -18,8 +18,8 @@ from collavn.scenes.scene import Scene
 #: Policies named by a word (anything else is a checkpoint path).
 NAMED_POLICIES = ("random", "oracle")
 
-__all__ = ["NAMED_POLICIES", "CheckpointPolicy", "OraclePolicy", "Policy", "RandomPolicy",
-           "load_policy", "make_policy"]
+__all__ = ["NAMED_POLICIES", "CheckpointPolicy", "CommStats", "OraclePolicy", "Policy",
+           "RandomPolicy", "load_policy", "make_policy"]
 
 
 def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0, device: str = "cpu",

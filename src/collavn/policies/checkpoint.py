@@ -22,10 +22,12 @@ import torch
 from collavn.configs import from_dict
 from collavn.errors import CheckpointError, ConfigError
 from collavn.files import atomic_write
+from collavn.models.communication import Message, communication_counts
 from collavn.models.config import ModelConfig
 from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
+from collavn.policies.base import CommStats
 
 #: Bumped when the checkpoint layout or the meaning of its weights changes.
 FORMAT_VERSION = 2
@@ -62,6 +64,13 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
     return payload
 
 
+def tally(message: Message, active: torch.Tensor) -> CommStats:
+    """One communication round of ``(E, N)`` agents as a :class:`CommStats`."""
+    counts = communication_counts(message, active)
+    return CommStats(int(active.sum()), int(counts.received.sum()), int(counts.when.sum()),
+                     float(counts.bytes.sum()))
+
+
 def checkpoint_model_config(payload: dict[str, Any], path: str | Path) -> ModelConfig:
     """The :class:`ModelConfig` a checkpoint's weights belong to."""
     try:
@@ -84,6 +93,7 @@ class CheckpointPolicy:
         self.keys = policy_keys(model.cfg.map.use_depth)
         self.stochastic = stochastic
         self.seed = seed
+        self.comm = CommStats()
 
     def initial_state(self, num_envs: int, num_agents: int) -> AgentState:
         """Zero recurrent state."""
@@ -96,14 +106,20 @@ class CheckpointPolicy:
         inputs = obs_to_torch(obs, self.keys, device), state, episode_start(obs, device)
         if not self.stochastic:
             out = self.model.act(*inputs, deterministic=True)
-            return out.action.cpu().numpy().astype(np.float64), out.state
-        # Sampling draws from torch's global generator: reseed it per call (reproducible
-        # per seed) inside fork_rng, so the caller's random state is left as it was.
-        with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
-            torch.manual_seed(self.seed)
-            self.seed += 1
-            out = self.model.act(*inputs)
+        else:
+            # Sampling draws from torch's global generator: reseed it per call
+            # (reproducible per seed) inside fork_rng, so the caller's random state is
+            # left as it was.
+            with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
+                torch.manual_seed(self.seed)
+                self.seed += 1
+                out = self.model.act(*inputs)
+        self.comm.add(tally(out.message, inputs[0]["active"]))
         return out.action.cpu().numpy().astype(np.float64), out.state
+
+    def communication(self) -> CommStats:
+        """Communication of every call to :meth:`act` so far."""
+        return self.comm
 
 
 def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,

@@ -6,6 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from collavn.policies.base import CommStats
 from collavn.scenes.navigation import GeodesicField
 from collavn.scenes.scene import Scene
 from collavn.simulation.kinematics import AgentParams, drive, wrap_angle
@@ -36,6 +37,10 @@ class OraclePolicy:
     def initial_state(self, num_envs: int, num_agents: int) -> None:
         """Memoryless (paths are recomputed from the current pose)."""
         return None
+
+    def communication(self) -> CommStats:
+        """The oracle never talks."""
+        return CommStats()
 
     def act(self, obs: dict[str, np.ndarray], state: None) -> tuple[np.ndarray, None]:
         """Steer every active agent along its shortest path, around obstacles."""

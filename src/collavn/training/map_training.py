@@ -66,7 +66,13 @@ class MapFIFO:
 
 
 class MapTrainer:
-    """Owns the FIFO and the map optimizer; call :meth:`observe` once per env step.
+    """Owns the FIFO and the map optimizer.
+
+    Call :meth:`observe` once per env step during collection: it only stores samples and
+    counts the updates owed (``cfg.updates`` every ``cfg.every`` steps). Call
+    :meth:`train_owed` after the policy update: the map weights never change while a
+    rollout is collected or re-scored, so PPO scores a rollout with the model that
+    collected it (the first epoch's ratio is exactly 1).
 
     Args:
         model: The actor-critic whose map builders are trained.
@@ -85,6 +91,7 @@ class MapTrainer:
         self.rng = np.random.default_rng(seed)
         self.sync_gradients = sync_gradients
         self.steps = 0
+        self.owed = 0
         self.last_loss = float("nan")
 
     def reseed(self, seed: int) -> None:
@@ -92,17 +99,24 @@ class MapTrainer:
         self.fifo.clear()
         self.rng = np.random.default_rng(seed)
         self.steps = 0
+        self.owed = 0
 
     def observe(self, obs: Mapping[str, np.ndarray]) -> None:
-        """Push the active agents' samples; train every ``cfg.every`` calls."""
+        """Push the active agents' samples; owe ``cfg.updates`` every ``cfg.every`` calls."""
         if not self.cfg.enabled:
             return
         active = obs["active"]
         keys = ("panorama", "gt_map", "depth") if self.use_depth else ("panorama", "gt_map")
         self.fifo.push({k: obs[k][active] for k in keys})
         self.steps += 1
-        if self.steps % self.cfg.every == 0 and self.fifo.size > 0:
-            self.last_loss = self.train(self.cfg.updates)
+        if self.steps % self.cfg.every == 0:
+            self.owed += self.cfg.updates
+
+    def train_owed(self) -> None:
+        """Run the updates owed since the last call (after the policy update)."""
+        if self.owed and self.fifo.size > 0:
+            self.last_loss = self.train(self.owed)
+        self.owed = 0
 
     def train(self, updates: int) -> float:
         """``updates`` gradient steps; returns the mean loss."""

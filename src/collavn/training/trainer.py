@@ -3,7 +3,8 @@
 :func:`train` reads in the algorithm's order; each step is a named function below.
 Method ``il`` replaces "GAE + PPO" by a supervised step on the oracle's actions
 (:mod:`collavn.training.imitation`); the map module learns alongside from its FIFO
-(:mod:`collavn.training.map_training`) during collection.
+(:mod:`collavn.training.map_training`) between policy updates, from the samples of the
+rollouts.
 
 Reproducibility: every ``checkpoint_interval`` updates is a *sync point* — all seeds
 are re-derived from ``(seed, rank, update)``, every env starts a new episode, the
@@ -31,7 +32,8 @@ from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
 from collavn.policies import OraclePolicy
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
-from collavn.policies.checkpoint import load_checkpoint, save_checkpoint
+from collavn.policies.base import CommStats
+from collavn.policies.checkpoint import load_checkpoint, save_checkpoint, tally
 from collavn.scenes import Scene, load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.training import distributed
@@ -178,7 +180,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     obs_t = obs_to_torch(run.obs, keys, device)
     rollout = Rollout.allocate(cfg.ppo.rollout_steps, obs_t, run.state)
     beta = expert_probability(cfg.imitation, run.iteration)
-    sent, talking, acting = 0.0, 0.0, 0.0
+    comm = CommStats()
     start = time.perf_counter()
     for t in range(rollout.steps):
         start_t = episode_start(run.obs, device)
@@ -190,10 +192,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
             actions = mix_actions(actions, expert, beta, run.rng)
             stored = torch.as_tensor(expert, dtype=torch.float32, device=device)
         rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value)
-        active = run.obs["active"]
-        sent += float(out.bytes_sent.cpu().numpy()[active].sum())
-        talking += float((out.bytes_sent.cpu().numpy()[active] > 0).sum())
-        acting += float(active.sum())
+        comm.add(tally(out.message, obs_t["active"]))
         run.maps.observe(run.obs)
         run.obs, reward, terminated, truncated, info = run.env.step(actions)
         rollout.insert_outcome(t, reward, terminated, truncated)
@@ -203,8 +202,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     with torch.no_grad():
         rollout.last_value = model(obs_t, run.state, episode_start(run.obs, device)).value
     seconds = time.perf_counter() - start
-    return rollout, {"comm/bytes_per_step": sent / max(acting, 1.0),
-                     "comm/rate": talking / max(acting, 1.0),
+    return rollout, {**{f"comm/{k}": v for k, v in comm.rates().items()},
                      "perf/collect_seconds": seconds,
                      **({"imitation/beta": beta} if run.expert is not None else {})}
 
@@ -229,6 +227,7 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
         run.demos.append(rollout)
         loss = imitation_update(run.model, run.optimizer, list(run.demos), cfg.imitation,
                                 run.generator, cfg.ppo.max_grad_norm, sync)
+        run.maps.train_owed()
         return {"loss/imitation": loss}
     advantages, returns = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
                                       rollout.truncated, rollout.last_value, cfg.ppo.gamma,
@@ -236,6 +235,7 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
     warmup = run.iteration < cfg.ppo.critic_warmup
     stats = ppo_update(run.model, run.optimizer, rollout, advantages, returns, cfg.ppo,
                        run.generator, sync, critic_only=warmup)
+    run.maps.train_owed()  # between updates: the next rollout is scored as collected
     return {f"loss/{k}": v for k, v in stats.__dict__.items()} | {
         "loss/critic_warmup": float(warmup)}
 
