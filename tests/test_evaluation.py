@@ -124,15 +124,11 @@ def test_demo_runs_end_to_end(tmp_path, capsys):
 
 
 def _untrained_checkpoint(path, method: str, seed: int = 0):
-    import sys
-
     import torch
-
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
-    from training_fixtures import tiny_config
 
     from collavn.models.policy import ActorCritic
     from collavn.policies.checkpoint import save_checkpoint
+    from training_fixtures import tiny_config
 
     cfg = tiny_config(method).with_env(panorama_width=32, panorama_height=8, goal_size=8)
     torch.manual_seed(seed)

@@ -159,7 +159,7 @@ def test_ppo_scores_a_rollout_with_the_model_that_collected_it(method):
     from collavn.training.map_training import map_parameters
     from collavn.training.trainer import learn
 
-    cfg, run, rollout = _fixed_batch(method)
+    _, run, rollout = _fixed_batch(method)
     assert run.maps.owed > 0  # map updates are owed, not yet taken
     with torch.no_grad():
         out = run.model.evaluate_actions(rollout.obs, rollout.initial_state,
