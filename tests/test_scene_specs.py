@@ -347,3 +347,72 @@ def test_pose_off_the_map_warns_once(open_room):
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             renderer.render(np.array([[40.0, 4.0, 0.0]]))
+
+
+# ------------------------------------------------------------------------ CLI
+def test_every_scene_command_takes_the_load_options(tmp_path, capsys):
+    """A Y-up OBJ in centimetres, from `scene info` to `viz`, on the command line only."""
+    import json
+
+    from collavn.cli import main
+    from collavn.evaluation.runner import read_trajectories
+
+    path = export(room(), tmp_path / "hall.obj", scale=100.0, y_up=True)
+    load = ["--up-axis", "y", "--scale", "0.01"]
+    assert main(["scene", "info", str(path)]) == 2  # the guard, not a crash
+    assert "--scale" in capsys.readouterr().err
+    assert main(["scene", "info", str(path), *load, "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["extent_m"][:2] == pytest.approx([8.0, 6.0], abs=0.01)
+    assert main(["render", str(path), *load, "--width", "64", "--height", "16", "--out",
+                 str(tmp_path / "view.png")]) == 0
+    assert (tmp_path / "view.png").is_file()
+    data = tmp_path / "data"
+    assert main(["dataset", "generate", "--split", "val", "--episodes", "1", "--scenes",
+                 str(path), *load, "--out", str(data), "--quiet"]) == 0
+    small = ["--panorama-width", "32", "--panorama-height", "8", "--goal-size", "8"]
+    assert main(["evaluate", "--policy", "random", "--dataset", str(data), "--out",
+                 str(tmp_path / "eval"), "--no-progress", *small]) == 0
+    traj = read_trajectories(tmp_path / "eval" / "trajectories.jsonl")[0]
+    assert traj.scene == SceneSpec(str(path.resolve()), up_axis="y", scale=0.01)
+    assert main(["viz", str(tmp_path / "eval"), "--out", str(tmp_path / "viz"), "--gifs",
+                 "0"]) == 0
+    # options for a scene that takes none are refused by name
+    assert main(["render", "procedural:0", "--scale", "2"]) == 2
+    assert "scale" in capsys.readouterr().err
+
+
+def test_a_dataset_made_in_python_from_a_y_up_scene_evaluates_from_the_cli(tmp_path, capsys):
+    from collavn.cli import main
+    from collavn.datasets.build import generate_dataset
+
+    path = export(room(), tmp_path / "room.glb", y_up=True)
+    scene = load_scene(SceneSpec(str(path), up_axis="y"))
+    data = tmp_path / "data"
+    generate_dataset(data, [scene], "commongoal", 2, "val", preset="small", progress=False)
+    assert main(["evaluate", "--policy", "oracle", "--dataset", str(data), "--difficulty",
+                 "easy", "--out", str(tmp_path / "eval"), "--no-progress",
+                 "--panorama-width", "32", "--panorama-height", "8", "--goal-size", "8",
+                 "--json"]) == 0
+    assert '"SR"' in capsys.readouterr().out
+
+
+def test_scene_info_and_render_share_one_cache_entry(tmp_path, monkeypatch):
+    from collavn.cli import main
+
+    monkeypatch.setenv("COLLAVN_CACHE", str(tmp_path / "cache"))
+    path = export(room(), tmp_path / "room.ply")
+    assert main(["scene", "info", str(path), "--json"]) == 0
+    assert main(["render", str(path), "--width", "32", "--height", "8", "--out",
+                 str(tmp_path / "v.png")]) == 0
+    assert len(list((tmp_path / "cache").rglob("*.npz"))) == 1
+
+
+def test_scene_word_alone_lists_its_subcommands(capsys):
+    from collavn.cli import main
+
+    assert main(["scene", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "scene info" in out and "train" not in out
+    assert main(["dataset"]) == 2
+    assert "dataset generate" in capsys.readouterr().err

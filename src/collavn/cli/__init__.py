@@ -36,10 +36,12 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
 }
 
 
-def _usage() -> str:
+def _usage(only: list[tuple[str, ...]] | None = None) -> str:
     lines = ["usage: collavn COMMAND [options]   (collavn COMMAND --help for details)", "",
              "commands:"]
     for words, (_, _, doc) in COMMANDS.items():
+        if only is not None and words not in only:
+            continue
         lines.append(f"  {' '.join(words):<20} {doc}")
     return "\n".join(lines)
 
@@ -58,6 +60,11 @@ def main(argv: list[str] | None = None) -> int:
             except CollavnError as e:
                 print(f"collavn: error: {e}", file=sys.stderr)
                 return 2
+    group = [w for w in COMMANDS if len(w) > 1 and args[:1] == [w[0]]]
+    if group:  # e.g. ``collavn scene --help``: the subcommands of that word
+        asked = args[1:2] in (["-h"], ["--help"])
+        print(_usage(group), file=sys.stdout if asked else sys.stderr)
+        return 0 if asked else 2
     print(_usage(), file=sys.stderr if args and args[0] not in ("-h", "--help") else sys.stdout)
     return 0 if not args or args[0] in ("-h", "--help") else 2
 

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import tyro
@@ -17,7 +17,7 @@ from collavn.datasets.episode import DIFFICULTY_BINS
 from collavn.datasets.generator import PRESETS, Preset
 from collavn.datasets.storage import Dataset
 from collavn.errors import DatasetError
-from collavn.scenes.scene import Scene
+from collavn.scenes import LoadOptions, load_scene
 
 #: Histogram bin edges of geodesic start-to-goal distances, metres.
 HISTOGRAM_EDGES = np.arange(1.5, 10.01, 0.5)
@@ -51,11 +51,14 @@ class DatasetGenerate:
     procedural scenes of the split."""
     quiet: bool = False
     """Do not show a progress bar."""
+    load: Annotated[LoadOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=LoadOptions)
+    """How to load mesh files (``--up-axis``, ``--scale``, ``--floor-height``; the same
+    for every mesh in ``--scenes``); recorded in the episode files."""
 
     def run(self) -> int:
         """Load the scenes, generate, write files and index; print what was written."""
         specs = list(self.scenes) or _default_specs(self.split)
-        scenes = [_load_scene(s) for s in specs]
+        scenes = [load_scene(self.load.spec(s)) for s in specs]
         preset: str | Preset = self.preset
         if self.episodes is not None:
             if self.episodes < 1:
@@ -127,10 +130,3 @@ def _default_specs(split: str) -> list[str]:
     from collavn.scenes.splits import scene_specs
 
     return list(scene_specs(split))
-
-
-def _load_scene(spec: str) -> Scene:
-    """Whatever :func:`collavn.scenes.load_scene` accepts (procedural, mesh, ``.npz``)."""
-    from collavn.scenes import load_scene
-
-    return load_scene(spec)

@@ -8,8 +8,11 @@ writes pictures: the scene map, trajectory maps per policy and an animated episo
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
+
+import tyro
 
 from collavn.datasets.build import generate_dataset
 from collavn.datasets.generator import Preset
@@ -17,7 +20,7 @@ from collavn.datasets.storage import Dataset
 from collavn.envs.config import EnvConfig
 from collavn.evaluation.benchmark import EvalConfig, run_evaluation, write_results
 from collavn.metrics import metrics_table
-from collavn.scenes import load_scene
+from collavn.scenes import LoadOptions, load_scene
 from collavn.viz.animate import draw_all
 from collavn.viz.topdown import save_scene_map
 
@@ -28,6 +31,8 @@ class Demo:
 
     scene: str = "procedural:0"
     """Scene spec: ``procedural:SEED`` or a mesh file."""
+    load: Annotated[LoadOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=LoadOptions)
+    """How to load a mesh file (``--up-axis``, ``--scale``, ``--floor-height``)."""
     out: Path = Path("demo_out")
     """Output directory."""
     agents: int = 2
@@ -42,7 +47,7 @@ class Demo:
     def run(self) -> int:
         """Run the demo and print where everything went."""
         start = time.perf_counter()
-        scene = load_scene(self.scene)
+        scene = load_scene(self.load.spec(self.scene))
         save_scene_map(scene, self.out / "scene_map.png")
         preset = Preset("demo", train=self.episodes, val=self.episodes, test=self.episodes)
         generate_dataset(self.out / "episodes", [scene], "commongoal", self.agents, "test",

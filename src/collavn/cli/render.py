@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -16,6 +16,7 @@ from collavn.rendering.cameras import CameraSpec
 from collavn.rendering.renderer import Renderer
 from collavn.scenes.loading import load_scene
 from collavn.scenes.scene import Scene
+from collavn.scenes.spec import LoadOptions
 
 
 @dataclass
@@ -39,10 +40,12 @@ class RenderCommand:
     """Ray caster: ``embree`` (CPU) or ``warp`` (NVIDIA Warp, CPU or CUDA)."""
     device: str = "cpu"
     """``cpu``, or ``cuda:N`` with the warp backend."""
+    load: Annotated[LoadOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=LoadOptions)
+    """How to load a mesh file (``--up-axis``, ``--scale``, ``--floor-height``)."""
 
     def run(self) -> int:
         """Load the scene, render one view, write both PNGs and print their paths."""
-        scene = load_scene(self.scene)
+        scene = load_scene(self.load.spec(self.scene))
         pose = parse_pose(self.pose) if self.pose is not None else default_pose(scene)
         if self.goal:
             spec = CameraSpec.pinhole(self.width or 128, self.height or 128)

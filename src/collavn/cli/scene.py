@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import tyro
 
 from collavn.scenes.loading import load_scene
+from collavn.scenes.spec import LoadOptions
 from collavn.scenes.summary import scene_summary
 
 
@@ -23,17 +24,12 @@ class SceneInfo:
     """Print JSON instead of a table."""
     map: Path | None = None
     """Also write a top-down map PNG (navigable area, obstacles, components, scale)."""
-    up_axis: str = "z"
-    """Up axis of a mesh file: ``z`` (Gibson, the shared scenes) or ``y`` (glTF/HM3D)."""
-    floor_height: float | None = None
-    """Multi-floor meshes: use the floor nearest this height (metres)."""
+    load: Annotated[LoadOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=LoadOptions)
+    """How to load a mesh file (``--up-axis``, ``--scale``, ``--floor-height``)."""
 
     def run(self) -> int:
         """Load, summarise, print; optionally draw."""
-        options: dict[str, Any] = {}
-        if not self.scene.startswith("procedural:"):
-            options = {"up_axis": self.up_axis, "floor_height": self.floor_height}
-        scene = load_scene(self.scene, **options)
+        scene = load_scene(self.load.spec(self.scene))
         info = scene_summary(scene)
         if self.map is not None:
             from collavn.viz.topdown import save_scene_map

@@ -75,7 +75,7 @@ def run_evaluation(cfg: EvalConfig, dataset: Dataset) -> EvaluationResult:
             episodes = selected[name]
             if not episodes:
                 continue
-            scene = load_scene(content.scene.source)
+            scene = load_scene(content.scene.spec)
             content.check_scene(scene)
             policy, overrides = make_policy(cfg.policy, [scene], cfg.seed, cfg.device,
                                             cfg.stochastic)

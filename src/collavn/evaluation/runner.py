@@ -16,6 +16,7 @@ from collavn.envs.vector import VectorEnv
 from collavn.metrics import AgentRecord
 from collavn.policies.base import CommStats, Policy
 from collavn.scenes.scene import Scene
+from collavn.scenes.spec import SceneSpec
 
 
 @dataclass
@@ -24,7 +25,7 @@ class Trajectory:
 
     Attributes:
         episode_id: The episode.
-        scene: ``Scene.source`` of its scene (``procedural:SEED`` or a mesh path).
+        scene: How to load its scene again (source and load options).
         poses: ``(T + 1, N, 3)`` world poses from the start to the end.
         goals: ``(N, 2)`` goal position of each agent.
         goal_yaws: ``(N,)`` goal view direction of each agent.
@@ -32,7 +33,7 @@ class Trajectory:
     """
 
     episode_id: str
-    scene: str
+    scene: SceneSpec
     poses: np.ndarray
     goals: np.ndarray
     goal_yaws: np.ndarray
@@ -40,14 +41,16 @@ class Trajectory:
 
     def to_json(self) -> dict[str, Any]:
         """JSON object."""
-        return {"episode_id": self.episode_id, "scene": self.scene,
+        return {"episode_id": self.episode_id, "scene": self.scene.to_dict(),
                 "poses": np.round(self.poses, 4).tolist(), "goals": self.goals.tolist(),
                 "goal_yaws": self.goal_yaws.tolist(), "success": self.success.tolist()}
 
     @classmethod
     def from_json(cls, obj: dict[str, Any]) -> Trajectory:
         """Inverse of :meth:`to_json`."""
-        return cls(obj["episode_id"], obj["scene"], np.asarray(obj["poses"], float),
+        scene = obj["scene"]  # a bare source string in files written before specs
+        spec = SceneSpec(scene) if isinstance(scene, str) else SceneSpec.from_dict(scene)
+        return cls(obj["episode_id"], spec, np.asarray(obj["poses"], float),
                    np.asarray(obj["goals"], float), np.asarray(obj["goal_yaws"], float),
                    np.asarray(obj["success"], bool))
 
@@ -113,7 +116,8 @@ def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: 
             if ep.episode_id in fresh and ep.episode_id in wanted:
                 success = np.array([r.success for r in sorted(done[ep.episode_id],
                                                               key=lambda r: r.agent)])
-                trajectories.append(Trajectory(ep.episode_id, scene.source,
+                spec = scene.spec or SceneSpec(scene.source)
+                trajectories.append(Trajectory(ep.episode_id, spec,
                                                np.stack(paths[e]), ep.agent_goals,
                                                ep.agent_goal_yaws, success))
             paths[e] = [world.poses()[e]]

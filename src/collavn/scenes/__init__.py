@@ -9,7 +9,7 @@ from collavn.scenes.limits import SizeLimits
 from collavn.scenes.loading import default_cache_dir, load_scene
 from collavn.scenes.navigation import GeodesicField, NavConfig, NavGrid
 from collavn.scenes.scene import Scene
-from collavn.scenes.spec import SceneSpec, parse_scene_spec
+from collavn.scenes.spec import LoadOptions, SceneSpec, parse_scene_spec
 
-__all__ = ["GeodesicField", "NavConfig", "NavGrid", "Scene", "SceneSpec", "SizeLimits",
-           "default_cache_dir", "load_scene", "parse_scene_spec"]
+__all__ = ["GeodesicField", "LoadOptions", "NavConfig", "NavGrid", "Scene", "SceneSpec",
+           "SizeLimits", "default_cache_dir", "load_scene", "parse_scene_spec"]

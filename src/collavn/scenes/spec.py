@@ -169,3 +169,35 @@ class SceneSpec:
 
 def _is_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+@dataclass(frozen=True)
+class LoadOptions:
+    """The load options of a mesh file, as the commands take them (``--up-axis`` …).
+
+    Attributes:
+        up_axis: Which axis of the file points up: ``auto`` (what the file declares, else
+            the geometry), ``x``, ``y`` or ``z``.
+        scale: Multiplies coordinates after the file's own unit (0.01 for centimetres).
+        floor_height: Use the floor nearest this height in metres (multi-storey meshes).
+    """
+
+    up_axis: UpAxis = "auto"
+    """Which axis of a mesh file points up: ``auto`` (what the file says, else the
+    geometry), ``x``, ``y`` or ``z``."""
+    scale: float = 1.0
+    """Multiply a mesh file's coordinates by this after its own unit (0.01: centimetres)."""
+    floor_height: float | None = None
+    """Multi-storey meshes: use the floor nearest this height in metres."""
+
+    def __post_init__(self) -> None:
+        SceneSpec("x.obj", self.up_axis, self.scale, self.floor_height)  # validates
+
+    def spec(self, source: str | Path | SceneSpec) -> SceneSpec:
+        """``source`` with these options; procedural and saved scenes take none.
+
+        Raises:
+            SceneError: options given for a scene that is not a mesh file.
+        """
+        options = SceneSpec("x.obj", self.up_axis, self.scale, self.floor_height).options
+        return SceneSpec.of(source, **options)

@@ -32,6 +32,7 @@ from collavn import configs
 from collavn.envs.config import EnvConfig
 from collavn.errors import ConfigError
 from collavn.models.config import CommVariant, ModelConfig
+from collavn.scenes.spec import LoadOptions
 
 Method = Literal["ours", "no-mem", "no-com", "il"]
 PresetName = Literal["paper", "cpu"]
@@ -152,6 +153,9 @@ class RunConfig:
     """Envs per process; env ``i`` lives in scene ``i mod #scenes`` of the process."""
     scenes: tuple[str, ...] = ()
     """Scene specs to train on; empty = the 25 procedural ``train`` scenes."""
+    load: Annotated[LoadOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=LoadOptions)
+    """How to load mesh files in ``scenes`` (``--up-axis``, ``--scale``,
+    ``--floor-height``)."""
     total_steps: int = 10_000_000
     """Stop after this many agent-steps (summed over processes)."""
     time_budget_minutes: float = 0.0

@@ -111,7 +111,7 @@ def set_train_mode(model: nn.Module) -> None:
 def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device) -> Run:
     """Scenes, envs, model (same initial weights on every rank), optimizers."""
     specs = list(cfg.run.scenes) or scene_specs("train")
-    scenes = [load_scene(s) for s in distributed.shard(specs, info)]
+    scenes = [load_scene(cfg.run.load.spec(s)) for s in distributed.shard(specs, info)]
     env = VectorEnv(scene_window(scenes, cfg.run.num_envs, 0), cfg.run.num_envs,
                     env_config(cfg), seed=info.seed(cfg.run.seed))
     torch.manual_seed(cfg.run.seed)

@@ -12,6 +12,7 @@ from collavn.envs.sensors import Sensors
 from collavn.evaluation.runner import Trajectory
 from collavn.scenes import load_scene
 from collavn.scenes.scene import Scene
+from collavn.scenes.spec import SceneSpec
 from collavn.viz.trajectories import episode_frames, save_episode_gif, save_trajectory_maps
 
 
@@ -32,7 +33,7 @@ def draw_all(trajectories: Sequence[Trajectory], out: Path, gifs: int = 1,
              panorama_width: int = 256) -> list[Path]:
     """Maps (one PNG per scene) and ``gifs`` animations; returns the written paths."""
     written = []
-    by_scene: dict[str, list[Trajectory]] = {}
+    by_scene: dict[SceneSpec, list[Trajectory]] = {}
     for t in trajectories:
         by_scene.setdefault(t.scene, []).append(t)
     scenes = {source: load_scene(source) for source in by_scene}
