@@ -74,3 +74,35 @@ def test_library_packages_never_import_the_cli_or_viz(name):
                     for n, _ in imported_packages(p) if n == name
                     and p.relative_to(ROOT).parts[0] not in ("viz", "cli", "experiments")})
     assert users == []
+
+
+def test_name_types_and_their_tables_agree():
+    from typing import get_args
+
+    from collavn.datasets.episode import DIFFICULTY_BINS, Difficulty
+    from collavn.envs.config import DifficultyChoice
+    from collavn.scenes.splits import SPLITS, Split
+    from collavn.tasks import TASKS, TaskName
+
+    assert get_args(TaskName) == tuple(TASKS)
+    assert get_args(Difficulty) == tuple(DIFFICULTY_BINS)
+    assert get_args(DifficultyChoice) == (*DIFFICULTY_BINS, "mixed")
+    assert get_args(Split) == SPLITS == ("train", "val", "test")
+
+
+def import_graph(root: Path = ROOT) -> dict[str, set[str]]:
+    """Package → the collavn packages it imports."""
+    graph: dict[str, set[str]] = {}
+    for path in root.rglob("*.py"):
+        own = path.relative_to(root).parts[0].removesuffix(".py")
+        graph.setdefault(own, set()).update(
+            n for n, _ in imported_packages(path) if n != own)
+    return graph
+
+
+if __name__ == "__main__":  # `python tests/test_layers.py [SRC_DIR]`: print the graph
+    import sys
+
+    graph = import_graph(Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT)
+    for package in sorted(graph):
+        print(f"{package:12s} -> {', '.join(sorted(graph[package])) or '-'}")

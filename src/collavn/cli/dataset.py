@@ -18,6 +18,8 @@ from collavn.datasets.generator import PRESETS, Preset
 from collavn.datasets.storage import Dataset
 from collavn.errors import DatasetError
 from collavn.scenes import LoadOptions, load_scene
+from collavn.scenes.splits import Split
+from collavn.tasks import TaskName
 
 #: Histogram bin edges of geodesic start-to-goal distances, metres.
 HISTOGRAM_EDGES = np.arange(1.5, 10.01, 0.5)
@@ -27,14 +29,14 @@ HISTOGRAM_EDGES = np.arange(1.5, 10.01, 0.5)
 class DatasetGenerate:
     """Generate episodes of one task setting and split into a dataset directory."""
 
-    task: Literal["commongoal", "specificgoal", "adhocoop"] = "commongoal"
+    task: TaskName = "commongoal"
     """Task setting: one shared goal, one goal per agent, or shared goal with a
     different number of agents at evaluation."""
     agents: int = 2
     """Number of agents N (Ad-hoCoop: the training N)."""
     eval_agents: int | None = None
     """Ad-hoCoop only: N' of val/test episodes (default 2→3, 3→2)."""
-    split: Literal["train", "val", "test"] = "val"
+    split: Split = "val"
     """Split to generate."""
     preset: Literal["paper", "small"] = "small"
     """Episode counts: paper (5,000 train per scene; 500 val / 1,000 test per scene and

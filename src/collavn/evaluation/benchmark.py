@@ -11,8 +11,9 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal, cast
+from typing import Any, cast
 
+from collavn.datasets.episode import Difficulty
 from collavn.datasets.storage import Dataset
 from collavn.envs.config import EnvConfig
 from collavn.errors import CollavnError
@@ -42,7 +43,7 @@ class EvalConfig:
     """Only this split (default: all in the dataset)."""
     group: str | None = None
     """Only this task setting, e.g. ``commongoal_n2`` or ``adhocoop_n2to3``."""
-    difficulty: Literal["easy", "medium", "hard"] | None = None
+    difficulty: Difficulty | None = None
     """Only the episodes of this difficulty bin."""
     num_envs: int = 4
     """Environments stepped together."""

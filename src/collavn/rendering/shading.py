@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from collavn.scenes.navigation import ROBOT_RADIUS
 from collavn.scenes.scene import Scene
 
 #: Colours of agent bodies, agent ``k`` uses ``BODY_PALETTE[k % len(BODY_PALETTE)]``.
@@ -60,11 +61,11 @@ class BodySpec:
     """Shape of the agents' bodies as other agents see them.
 
     Attributes:
-        radius: Cylinder radius in metres (LoCoBot: 0.18).
+        radius: Cylinder radius in metres (the robot's, :data:`ROBOT_RADIUS`).
         height: Cylinder height above the floor in metres.
     """
 
-    radius: float = 0.18
+    radius: float = ROBOT_RADIUS
     height: float = 0.6
 
 

@@ -17,6 +17,10 @@ from collavn.errors import SceneError
 from collavn.scenes.limits import SizeLimits
 from collavn.scenes.traversability import floor_cells, obstacle_cells
 
+#: The robot's body radius in metres (LoCoBot, 0.36 m wide): navigation, kinematics and
+#: the bodies other agents see all use this one value.
+ROBOT_RADIUS = 0.18
+
 
 @dataclass(frozen=True)
 class NavConfig:
@@ -24,7 +28,7 @@ class NavConfig:
 
     Attributes:
         resolution: Grid cell size in metres (the paper's traversability map: 0.10 m).
-        agent_radius: Robot body radius in metres (LoCoBot: 0.18 m); free space is
+        agent_radius: Robot body radius in metres (:data:`ROBOT_RADIUS`); free space is
             eroded by it, so a navigable cell is a valid position for the robot centre.
         agent_height: Geometry between ``step_height`` and this height above the
             floor blocks the robot (its camera mast reaches 0.9 m).
@@ -34,7 +38,7 @@ class NavConfig:
     """
 
     resolution: float = 0.10
-    agent_radius: float = 0.18
+    agent_radius: float = ROBOT_RADIUS
     agent_height: float = 1.0
     step_height: float = 0.05
     sample_step: float = 0.03

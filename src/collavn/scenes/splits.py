@@ -16,10 +16,14 @@ Each range holds up to :data:`SPLIT_STRIDE` seeds, so larger splits stay disjoin
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 from collavn.errors import SceneError
 
+#: A split's name.
+Split = Literal["train", "val", "test"]
 #: The splits, in the order of ``sizes``.
-SPLITS = ("train", "val", "test")
+SPLITS: tuple[str, ...] = get_args(Split)
 #: First seed of each split's range; ranges are this far apart.
 SPLIT_STRIDE = 1000
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from collavn.scenes.navigation import NavGrid
+from collavn.scenes.navigation import ROBOT_RADIUS, NavGrid
 
 
 @dataclass(frozen=True)
@@ -31,7 +31,7 @@ class AgentParams:
             below a 10 cm grid cell, so no agent tunnels through a wall.
     """
 
-    radius: float = 0.18
+    radius: float = ROBOT_RADIUS
     max_linear: float = 0.70
     max_angular: float = float(np.pi)
     step_seconds: float = 1.0

@@ -43,6 +43,7 @@ class TaskSpec:
 #: A task setting's name (the keys of :data:`TASKS`).
 TaskName = Literal["commongoal", "specificgoal", "adhocoop"]
 
+#: The task settings by name (keys: :data:`TaskName`'s values).
 TASKS: dict[str, TaskSpec] = {
     "commongoal": TaskSpec("commongoal", shared_goal=True),
     "specificgoal": TaskSpec("specificgoal", shared_goal=False),

@@ -16,14 +16,21 @@ import numpy as np
 from collavn.evaluation.runner import Trajectory
 from collavn.rendering.frames import AGENT_COLOURS, views_strip
 from collavn.scenes.scene import Scene
-from collavn.viz.topdown import draw_scene_map, nav_map_image
+from collavn.viz.topdown import draw_scene_map
 
 START_COLOUR = "#1f5fbf"
 GOAL_COLOUR = "#ff8c1a"
 
 
-def draw_trajectory(ax: Any, scene: Scene, traj: Trajectory, title: str | None = None) -> None:
-    """Draw one episode on a matplotlib axis (world coordinates)."""
+def draw_trajectory(ax: Any, scene: Scene, traj: Trajectory, title: str | None = None,
+                    upto: int | None = None) -> list[Any]:
+    """Draw one episode on a matplotlib axis (world coordinates) — the one map drawer.
+
+    ``upto``: draw the paths up to step ``upto`` with each robot's body and heading
+    there (animation frames); ``None``: the whole episode with an end marker (star:
+    reached, cross: not). Returns the artists of the agents (to remove for the next
+    frame).
+    """
     draw_scene_map(ax, scene, title or traj.episode_id)
     radius = scene.nav.config.agent_radius
     for goal, yaw in zip(np.unique(traj.goals, axis=0), _goal_yaws(traj), strict=True):
@@ -32,15 +39,34 @@ def draw_trajectory(ax: Any, scene: Scene, traj: Trajectory, title: str | None =
         ax.arrow(goal[0], goal[1], 0.5 * np.cos(yaw), 0.5 * np.sin(yaw), width=0.03,
                  color=GOAL_COLOUR, length_includes_head=True)
     for n in range(traj.poses.shape[1]):
-        colour = AGENT_COLOURS[n % len(AGENT_COLOURS)] / 255.0
-        xy = traj.poses[:, n, :2]
-        ax.plot(xy[:, 0], xy[:, 1], color=colour, linewidth=2, label=f"agent_{n}")
-        ax.add_patch(_circle(xy[0], radius * 1.4, START_COLOUR))
-        marker = "*" if traj.success[n] else "X"
-        ax.plot(xy[-1, 0], xy[-1, 1], marker=marker, markersize=14 if traj.success[n] else 10,
-                color=colour, markeredgecolor="black")
+        ax.add_patch(_circle(traj.poses[0, n, :2], radius * 1.4, START_COLOUR))
+    artists = draw_agents(ax, scene, traj, upto)
     ax.legend(loc="upper right", fontsize=7)
     _zoom(ax, scene, traj)
+    return artists
+
+
+def draw_agents(ax: Any, scene: Scene, traj: Trajectory, upto: int | None) -> list[Any]:
+    """Each agent's path (to step ``upto``, or all) and its end marker or body."""
+    radius = scene.nav.config.agent_radius
+    last = len(traj.poses) - 1 if upto is None else upto
+    artists: list[Any] = []
+    for n in range(traj.poses.shape[1]):
+        colour = AGENT_COLOURS[n % len(AGENT_COLOURS)] / 255.0
+        xy = traj.poses[: last + 1, n, :2]
+        artists += ax.plot(xy[:, 0], xy[:, 1], color=colour, linewidth=2, label=f"agent_{n}")
+        if upto is None:
+            marker = "*" if traj.success[n] else "X"
+            artists += ax.plot(xy[-1, 0], xy[-1, 1], marker=marker,
+                               markersize=14 if traj.success[n] else 10, color=colour,
+                               markeredgecolor="black")
+        else:
+            yaw = traj.poses[last, n, 2]
+            artists.append(ax.add_patch(_circle(xy[-1], radius, colour)))
+            artists.append(ax.arrow(xy[-1, 0], xy[-1, 1], 1.6 * radius * np.cos(yaw),
+                                    1.6 * radius * np.sin(yaw), width=0.04, color="black",
+                                    length_includes_head=True, zorder=4))
+    return artists
 
 
 def save_trajectory_maps(scene: Scene, trajectories: Sequence[Trajectory], path: str | Path,
@@ -68,7 +94,7 @@ def save_trajectory_maps(scene: Scene, trajectories: Sequence[Trajectory], path:
 
 
 def episode_frames(scene: Scene, traj: Trajectory, panoramas: np.ndarray, goals: np.ndarray,
-                   cell_pixels: int = 3) -> list[np.ndarray]:
+                   map_pixels: int = 360) -> list[np.ndarray]:
     """Animation frames: all agents' panoramas and goal images beside the top-down map.
 
     Args:
@@ -76,21 +102,29 @@ def episode_frames(scene: Scene, traj: Trajectory, panoramas: np.ndarray, goals:
         traj: Poses ``(T + 1, N, 3)``.
         panoramas: ``(T + 1, N, 3, H, W)`` uint8 views along the trajectory.
         goals: ``(N, 3, G, G)`` uint8 goal images.
-        cell_pixels: Map pixels per 10 cm cell.
+        map_pixels: Side of the map picture in pixels.
     """
-    base = np.repeat(np.repeat((nav_map_image(scene) * 255).astype(np.uint8), cell_pixels, 0),
-                     cell_pixels, 1)
-    # Crop the map to the episode (plus 2 m) so large buildings stay legible.
-    pts = _to_pixel(scene, np.concatenate([traj.poses[..., :2].reshape(-1, 2), traj.goals]),
-                    base.shape[0], cell_pixels)
-    margin = 2.0 / scene.nav.resolution * cell_pixels
-    r0, c0 = np.maximum(pts.min(axis=0) - margin, 0).astype(int)
-    r1, c1 = (pts.max(axis=0) + margin).astype(int)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(map_pixels / 100, map_pixels / 100), dpi=100)
+    moving = draw_trajectory(ax, scene, traj, traj.episode_id, upto=0)
+    fig.tight_layout()
+    for artist in moving:  # the map without the agents, drawn once (blitting)
+        artist.remove()
+    fig.canvas.draw()
+    background = fig.canvas.copy_from_bbox(fig.bbox)  # type: ignore[attr-defined]
     frames = []
     for t in range(len(traj.poses)):
-        top = _draw_map(base.copy(), scene, traj, t, cell_pixels)[r0:r1, c0:c1]
-        strip = views_strip(panoramas[t], goals)
-        frames.append(_side_by_side(strip, top))
+        fig.canvas.restore_region(background)  # type: ignore[attr-defined]
+        for artist in draw_agents(ax, scene, traj, upto=t):
+            ax.draw_artist(artist)
+            artist.remove()
+        top = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()  # type: ignore[attr-defined]
+        frames.append(_side_by_side(views_strip(panoramas[t], goals), top))
+    plt.close(fig)
     return frames
 
 
@@ -121,39 +155,6 @@ def _zoom(ax: Any, scene: Scene, traj: Trajectory, margin: float = 2.0) -> None:
     lo, hi = pts.min(axis=0) - margin, pts.max(axis=0) + margin
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
-
-
-def _to_pixel(scene: Scene, xy: np.ndarray, image_h: int, cell_pixels: int) -> np.ndarray:
-    nav = scene.nav
-    col = (xy[..., 0] - nav.origin[0]) / nav.resolution * cell_pixels
-    row = image_h - (xy[..., 1] - nav.origin[1]) / nav.resolution * cell_pixels
-    return np.stack([row, col], axis=-1)
-
-
-def _disc(img: np.ndarray, centre: np.ndarray, radius: float, colour: np.ndarray) -> None:
-    h, w = img.shape[:2]
-    r0, c0 = centre
-    rows, cols = np.ogrid[0:h, 0:w]
-    img[(rows - r0) ** 2 + (cols - c0) ** 2 <= radius**2] = colour
-
-
-def _draw_map(img: np.ndarray, scene: Scene, traj: Trajectory, t: int, cp: int) -> np.ndarray:
-    h = img.shape[0]
-    body = scene.nav.config.agent_radius / scene.nav.resolution * cp
-    for goal in np.unique(traj.goals, axis=0):
-        _disc(img, _to_pixel(scene, goal, h, cp), body * 1.3, np.array([255, 140, 26]))
-    for n in range(traj.poses.shape[1]):
-        colour = AGENT_COLOURS[n % len(AGENT_COLOURS)]
-        path = _to_pixel(scene, traj.poses[: t + 1, n, :2], h, cp)
-        for p in path:
-            _disc(img, p, max(1.0, cp / 2), colour)
-        _disc(img, _to_pixel(scene, traj.poses[0, n, :2], h, cp), body * 0.8,
-              np.array([31, 95, 191]))
-        _disc(img, path[-1], body, colour)
-        yaw = traj.poses[t, n, 2]
-        tip = path[-1] + 1.6 * body * np.array([-np.sin(yaw), np.cos(yaw)])
-        _disc(img, tip, max(1.5, body / 3), np.array([0, 0, 0]))
-    return img
 
 
 def _side_by_side(left: np.ndarray, right: np.ndarray) -> np.ndarray:
