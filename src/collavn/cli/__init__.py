@@ -33,6 +33,8 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
                "Trajectory maps and an episode GIF from an evaluation's output."),
     ("train",): ("collavn.cli.train", "main",
                  "Train ours / no-mem / no-com (PPO) or il; checkpoints, TensorBoard, resume."),
+    ("experiment",): ("collavn.cli.experiment", "Experiment",
+                      "The paper's table end to end for a budget: train, evaluate, report."),
 }
 
 

@@ -17,36 +17,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import tyro
-
-from collavn.training.config import PRESETS, TrainConfig
-
-#: The preset used when ``--preset`` is not given.
-DEFAULT_PRESET = "cpu"
+from collavn.training.config import TrainConfig, parse_train_args
 
 
 def parse(args: Sequence[str], prog: str = "collavn train") -> TrainConfig:
     """``[--preset NAME] [flags]`` → the resolved :class:`TrainConfig`."""
-    args = list(args)
-    preset = DEFAULT_PRESET
-    for i, a in enumerate(args):
-        if a == "--preset" and i + 1 < len(args):
-            preset = args[i + 1]
-            del args[i:i + 2]
-            break
-        if a.startswith("--preset="):
-            preset = a.split("=", 1)[1]
-            del args[i]
-            break
-    if preset not in PRESETS:
-        raise SystemExit(f"{prog}: error: unknown preset {preset!r}; expected one of "
-                         f"{', '.join(PRESETS)}")
-    description = (f"Train a navigation agent (decentralized PPO or imitation); preset "
-                   f"{preset!r}: {PRESETS[preset][0]} Choose the preset with --preset "
-                   f"{{{','.join(PRESETS)}}} (default {DEFAULT_PRESET}).")
-    return tyro.extras.overridable_config_cli(
-        {preset: (description, PRESETS[preset][1])}, args=[preset, *args], prog=prog,
-        description=description)
+    return parse_train_args(args, prog)
 
 
 def main(args: Sequence[str], prog: str = "collavn train") -> int:

@@ -23,6 +23,7 @@ field except :data:`RUN_CONTROL_FIELDS`) is equal.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Annotated, Any, Literal
 
@@ -359,3 +360,35 @@ def preset_deviations(a: str = "paper", b: str = "cpu",
         keys = [k for k in reasons if path == k or path.startswith(k + ".")]
         out[path] = (va, vb, reasons[max(keys, key=len)] if keys else None)
     return out
+
+
+#: The preset used when ``--preset`` is not given.
+DEFAULT_PRESET = "cpu"
+
+
+def parse_train_args(args: Sequence[str], prog: str = "collavn train") -> TrainConfig:
+    """``[--preset NAME] [flags]`` → the config ``collavn train`` would run.
+
+    The preset (default :data:`DEFAULT_PRESET`) supplies the defaults through tyro's
+    overridable configs; every field is a flag.
+    """
+    args = list(args)
+    preset = DEFAULT_PRESET
+    for i, a in enumerate(args):
+        if a == "--preset" and i + 1 < len(args):
+            preset = args[i + 1]
+            del args[i:i + 2]
+            break
+        if a.startswith("--preset="):
+            preset = a.split("=", 1)[1]
+            del args[i]
+            break
+    if preset not in PRESETS:
+        raise SystemExit(f"{prog}: error: unknown preset {preset!r}; expected one of "
+                         f"{', '.join(PRESETS)}")
+    description = (f"Train a navigation agent (decentralized PPO or imitation); preset "
+                   f"{preset!r}: {PRESETS[preset][0]} Choose the preset with --preset "
+                   f"{{{','.join(PRESETS)}}} (default {DEFAULT_PRESET}).")
+    return tyro.extras.overridable_config_cli(
+        {preset: (description, PRESETS[preset][1])}, args=[preset, *args], prog=prog,
+        description=description)
