@@ -34,7 +34,8 @@ class EvalConfig:
     """What to evaluate, on which episodes, and how."""
 
     policy: str = "random"
-    """``random``, ``oracle`` (privileged shortest-path follower), or a checkpoint file."""
+    """``random``, ``explorer`` (goal-blind: straight on, turn when blocked), ``oracle``
+    (privileged shortest-path follower), or a checkpoint file."""
     dataset: Path = Path("data/episodes")
     """Dataset directory (made by ``collavn dataset generate``)."""
     out: Path = Path("runs/eval")

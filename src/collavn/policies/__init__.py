@@ -1,4 +1,4 @@
-"""Policies behind one protocol: random, the shortest-path oracle, trained checkpoints.
+"""Policies behind one protocol: random, explorer, the shortest-path oracle, checkpoints.
 
 Training and evaluation both import this package; neither imports the other.
 """
@@ -12,25 +12,28 @@ from typing import Any
 from collavn.errors import CollavnError
 from collavn.policies.base import CommStats, Policy, RandomPolicy
 from collavn.policies.checkpoint import CheckpointPolicy, load_policy
+from collavn.policies.explorer import ExplorerPolicy
 from collavn.policies.oracle import OraclePolicy
 from collavn.scenes.scene import Scene
 
 #: Policies named by a word (anything else is a checkpoint path).
-NAMED_POLICIES = ("random", "oracle")
+NAMED_POLICIES = ("random", "explorer", "oracle")
 
-__all__ = ["NAMED_POLICIES", "CheckpointPolicy", "CommStats", "OraclePolicy", "Policy",
-           "RandomPolicy", "load_policy", "make_policy"]
+__all__ = ["NAMED_POLICIES", "CheckpointPolicy", "CommStats", "ExplorerPolicy", "OraclePolicy",
+           "Policy", "RandomPolicy", "load_policy", "make_policy"]
 
 
 def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0, device: str = "cpu",
                 stochastic: bool = False) -> tuple[Policy, dict[str, Any]]:
-    """A policy by name (``random``, ``oracle``) or checkpoint path.
+    """A policy by name (``random``, ``explorer``, ``oracle``) or checkpoint path.
 
     Returns:
         The policy and the env overrides it needs (privileged observations, image sizes).
     """
     if name == "random":
         return RandomPolicy(seed), {}
+    if name == "explorer":
+        return ExplorerPolicy(seed), {"depth": True}
     if name == "oracle":
         return OraclePolicy(scenes), {"privileged": True}
     if not Path(name).exists():

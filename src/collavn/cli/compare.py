@@ -1,0 +1,73 @@
+"""``collavn compare``: paired bootstrap differences between evaluations of one dataset."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import tyro
+
+from collavn.errors import CollavnError
+from collavn.evaluation.compare import compare_records, comparisons_to_markdown
+from collavn.evaluation.runner import read_records
+from collavn.metrics import AgentRecord
+
+
+@dataclass
+class Compare:
+    """Compare evaluations of the same episodes (paired bootstrap over episodes).
+
+    SR, SPL and DTS differences with 95 % intervals, per difficulty and overall. Every
+    evaluation after the first is compared with the first (Δ = it − first).
+    """
+
+    evaluations: Annotated[tuple[Path, ...], tyro.conf.Positional]
+    """Evaluation output directories (holding ``records.jsonl``) or records files;
+    the first is the baseline."""
+    samples: int = 5000
+    """Bootstrap resamples of the episodes."""
+    seed: int = 0
+    """Seeds the resampling."""
+    json: bool = False
+    """Print JSON (a list, one object per compared evaluation) instead of Markdown."""
+
+    def run(self) -> int:
+        """Read the records, check they pair up, bootstrap, print."""
+        if len(self.evaluations) < 2:
+            raise CollavnError("give at least two evaluations: BASELINE METHOD [METHOD ...]")
+        names = _names(self.evaluations)
+        records = [_records(path) for path in self.evaluations]
+        comparisons = [compare_records(records[0], other, names[0], name, self.samples,
+                                       self.seed)
+                       for name, other in zip(names[1:], records[1:], strict=True)]
+        if self.json:
+            print(json.dumps([c.to_json() for c in comparisons], indent=2))
+        else:
+            print(comparisons_to_markdown(comparisons))
+        return 0
+
+
+def _records(path: Path) -> list[AgentRecord]:
+    """Records of an evaluation directory or file; refuses an ambiguous directory."""
+    if path.is_dir():
+        file = path / "records.jsonl"
+        if not file.is_file():
+            several = sorted(p.name for p in path.glob("records_*.jsonl"))
+            hint = f" (it holds {', '.join(several)}: pass one)" if several else ""
+            raise CollavnError(f"no records.jsonl in {path}{hint}: run `collavn evaluate` "
+                               f"first")
+        path = file
+    if not path.is_file():
+        raise CollavnError(f"no evaluation at {path}")
+    records = read_records(path)
+    if not records:
+        raise CollavnError(f"{path} holds no records")
+    return records
+
+
+def _names(paths: tuple[Path, ...]) -> list[str]:
+    """Short names (directory or file stem), the full paths if those collide."""
+    short = [p.name if p.is_dir() else p.stem for p in paths]
+    return short if len(set(short)) == len(short) else [str(p) for p in paths]

@@ -1,0 +1,245 @@
+"""Paired comparisons of evaluations on the same episodes: differences with intervals.
+
+Two policies evaluated on the same episodes are compared episode by episode. The
+paired bootstrap resamples **episodes** (with replacement), never single agents: the
+agents of one episode share a scene, a start and a goal, so they are not independent
+and are resampled together. For each resample both policies' metric is recomputed
+over the same episodes, and the 2.5 and 97.5 percentiles of the differences form the
+95 % interval::
+
+    a, b = read_records("runs/random/records.jsonl"), read_records("runs/ours/records.jsonl")
+    comparison = compare_records(a, b, "random", "ours", samples=5000, seed=0)
+    comparison.groups["easy"]["SR"]       # Difference(a=0.40, b=0.62, delta=0.22, …)
+
+The difference is always ``method − baseline`` (B − A). Each metric is the mean over
+every agent of every resampled episode, exactly as :mod:`collavn.metrics` computes it
+(an episode with more agents weighs more). A difficulty is resampled within its own
+episodes; ``overall`` resamples all episodes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from collavn.errors import CollavnError
+from collavn.metrics import DIFFICULTIES, AgentRecord, compute_metrics
+
+#: Metrics compared by default, in table order (DTS: lower is better).
+COMPARED = ("SR", "SPL", "DTS")
+#: Resamples drawn at once (bounds memory for large datasets).
+_CHUNK = 1000
+
+
+@dataclass(frozen=True)
+class EpisodeScores:
+    """Per-episode sums of each agent's metric term, the input of the bootstrap.
+
+    Attributes:
+        episode_ids: ``(K,)`` episode ids, sorted.
+        difficulty: ``(K,)`` difficulty of each episode.
+        agents: ``(K,)`` agent records per episode.
+        sums: ``{metric: (K,)}`` sum over the episode's agents of that agent's term
+            (e.g. ``τ`` for SR), so a metric over episodes ``I`` is
+            ``sums[I].sum() / agents[I].sum()``.
+    """
+
+    episode_ids: np.ndarray
+    difficulty: np.ndarray
+    agents: np.ndarray
+    sums: dict[str, np.ndarray]
+
+    def select(self, mask: np.ndarray) -> EpisodeScores:
+        """The episodes where ``mask (K,)`` is True."""
+        return EpisodeScores(self.episode_ids[mask], self.difficulty[mask],
+                             self.agents[mask], {m: v[mask] for m, v in self.sums.items()})
+
+
+def episode_scores(records: Sequence[AgentRecord], metrics: Sequence[str] = COMPARED,
+                   max_steps: int = 80, success_distance: float = 1.0) -> EpisodeScores:
+    """Group agent records by episode and sum each agent's metric term per episode."""
+    ids = sorted({r.episode_id for r in records})
+    index = {eid: k for k, eid in enumerate(ids)}
+    agents = np.zeros(len(ids))
+    sums = {m: np.zeros(len(ids)) for m in metrics}
+    difficulty = np.empty(len(ids), dtype=object)
+    for r in records:
+        k = index[r.episode_id]
+        agents[k] += 1
+        difficulty[k] = r.difficulty
+        terms = compute_metrics([r], max_steps, success_distance)  # one agent: its term
+        for m in metrics:
+            sums[m][k] += terms[m]
+    return EpisodeScores(np.array(ids, dtype=object), difficulty, agents, sums)
+
+
+@dataclass(frozen=True)
+class Difference:
+    """One metric of two policies on the same episodes.
+
+    Attributes:
+        a: The baseline's value.
+        b: The method's value.
+        delta: ``b − a``.
+        low: 2.5th percentile of the bootstrapped ``b − a``.
+        high: 97.5th percentile.
+    """
+
+    a: float
+    b: float
+    delta: float
+    low: float
+    high: float
+
+
+def paired_bootstrap(a: EpisodeScores, b: EpisodeScores, samples: int = 5000,
+                     rng: np.random.Generator | None = None,
+                     level: float = 0.95) -> dict[str, Difference]:
+    """Difference ``b − a`` of every metric with its percentile interval.
+
+    Args:
+        a: Baseline scores; same episodes in the same order as ``b``.
+        b: Method scores.
+        samples: Bootstrap resamples of the ``K`` episodes.
+        rng: Draws the resampled episode indices (shared by all metrics).
+        level: Coverage of the interval.
+    """
+    if not np.array_equal(a.episode_ids, b.episode_ids):
+        raise CollavnError("paired bootstrap needs the same episodes in the same order")
+    if len(a.episode_ids) == 0:
+        raise CollavnError("no episodes to compare")
+    rng = rng or np.random.default_rng(0)
+    k = len(a.episode_ids)
+    deltas: dict[str, list[np.ndarray]] = {m: [] for m in a.sums}
+    for start in range(0, samples, _CHUNK):
+        idx = rng.integers(0, k, size=(min(_CHUNK, samples - start), k))
+        agents = a.agents[idx].sum(axis=1)
+        for m in a.sums:
+            deltas[m].append((b.sums[m][idx].sum(axis=1) - a.sums[m][idx].sum(axis=1))
+                             / agents)
+    tail = 100 * (1 - level) / 2
+    out = {}
+    for m in a.sums:
+        va, vb = a.sums[m].sum() / a.agents.sum(), b.sums[m].sum() / b.agents.sum()
+        low, high = np.percentile(np.concatenate(deltas[m]), [tail, 100 - tail])
+        out[m] = Difference(float(va), float(vb), float(vb - va), float(low), float(high))
+    return out
+
+
+def check_same_episodes(a: Sequence[AgentRecord], b: Sequence[AgentRecord], name_a: str = "A",
+                        name_b: str = "B", examples: int = 3) -> None:
+    """Refuse to pair evaluations of different datasets or episode sets, saying which.
+
+    Compares the sets of ``(episode_id, agent)`` keys, then, for the shared keys, the
+    difficulty and geodesic start distance (same ids from a regenerated dataset).
+    """
+    keys_a, keys_b = _keys(a, name_a), _keys(b, name_b)
+    if keys_a.keys() != keys_b.keys():
+        only_a = sorted({eid for eid, _ in keys_a.keys() - keys_b.keys()})
+        only_b = sorted({eid for eid, _ in keys_b.keys() - keys_a.keys()})
+        common = {eid for eid, _ in keys_a.keys() & keys_b.keys()}
+        what = ("different datasets (no episode in common)" if not common else
+                "different episode sets")
+        parts = [f"{len(ids)} episode(s) only in {name} (e.g. {', '.join(ids[:examples])})"
+                 for name, ids in ((name_a, only_a), (name_b, only_b)) if ids]
+        raise CollavnError(f"{name_a} and {name_b} were evaluated on {what}: "
+                           + "; ".join(parts))
+    differ = sorted({key[0] for key, ra in keys_a.items()
+                     if (ra.difficulty, round(ra.start_distance, 3))
+                     != (keys_b[key].difficulty, round(keys_b[key].start_distance, 3))})
+    if differ:
+        raise CollavnError(f"{name_a} and {name_b} share episode ids but not episodes "
+                           f"(different datasets): {len(differ)} episode(s) differ in "
+                           f"difficulty or start distance (e.g. {', '.join(differ[:examples])})")
+
+
+def _keys(records: Sequence[AgentRecord], name: str) -> dict[tuple[str, int], AgentRecord]:
+    out: dict[tuple[str, int], AgentRecord] = {}
+    for r in records:
+        key = (r.episode_id, r.agent)
+        if key in out:
+            raise CollavnError(f"{name} has two records of episode {r.episode_id} agent "
+                               f"{r.agent}")
+        out[key] = r
+    return out
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Method vs baseline per difficulty and overall.
+
+    Attributes:
+        baseline: Name of A.
+        method: Name of B.
+        groups: ``{"easy" | "medium" | "hard" | "overall": {metric: Difference}}``;
+            difficulties without episodes are left out.
+        episodes: ``{group: episodes compared}``.
+        samples: Bootstrap resamples.
+        seed: Seed of the resampling.
+    """
+
+    baseline: str
+    method: str
+    groups: dict[str, dict[str, Difference]]
+    episodes: dict[str, int]
+    samples: int
+    seed: int
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain JSON: ``{"baseline", "method", "samples", "seed", "groups": {...}}``."""
+        return {"baseline": self.baseline, "method": self.method, "samples": self.samples,
+                "seed": self.seed, "difference": "method - baseline",
+                "groups": {g: {"episodes": self.episodes[g],
+                               **{m: vars(d) for m, d in diffs.items()}}
+                           for g, diffs in self.groups.items()}}
+
+
+def compare_records(a: Sequence[AgentRecord], b: Sequence[AgentRecord], name_a: str = "A",
+                    name_b: str = "B", samples: int = 5000, seed: int = 0,
+                    metrics: Sequence[str] = COMPARED) -> Comparison:
+    """Check that ``a`` and ``b`` cover the same episodes, then bootstrap ``b − a``.
+
+    Each group draws from its own generator, ``default_rng([seed, group index])``, so a
+    difficulty's interval does not depend on which other difficulties are present.
+    """
+    if samples < 1:
+        raise CollavnError(f"samples must be ≥ 1, got {samples}")
+    check_same_episodes(a, b, name_a, name_b)
+    scores_a, scores_b = episode_scores(a, metrics), episode_scores(b, metrics)
+    groups, episodes = {}, {}
+    for g, group in enumerate((*DIFFICULTIES, "overall")):
+        mask = (np.ones(len(scores_a.episode_ids), bool) if group == "overall"
+                else scores_a.difficulty == group)
+        if not mask.any():
+            continue
+        rng = np.random.default_rng([seed, g])
+        groups[group] = paired_bootstrap(scores_a.select(mask), scores_b.select(mask),
+                                         samples, rng)
+        episodes[group] = int(mask.sum())
+    return Comparison(name_a, name_b, groups, episodes, samples, seed)
+
+
+def comparisons_to_markdown(comparisons: Sequence[Comparison]) -> str:
+    """One table: a row per method and group, ``baseline → method`` and ``Δ [95 % CI]``."""
+    if not comparisons:
+        return ""
+    first = comparisons[0]
+    metrics = list(next(iter(first.groups.values())))
+    lines = [f"Paired bootstrap over episodes ({first.samples} resamples, seed {first.seed}): "
+             f"Δ = method − {first.baseline}, 95 % percentile interval.", ""]
+    header = ["method", "difficulty", "episodes"] + [
+        f"{m} ({first.baseline} → method) | Δ{m} [95 % CI]" for m in metrics]
+    lines.append("| " + " | ".join(header) + " |")
+    lines.append("|" + "|".join([":---", ":---", "---:"] + ["---:|---:"] * len(metrics)) + "|")
+    for c in comparisons:
+        for group, diffs in c.groups.items():
+            cells = [c.method, group, str(c.episodes[group])]
+            for m in metrics:
+                d = diffs[m]
+                cells.append(f"{d.a:.3f} → {d.b:.3f} | {d.delta:+.3f} "
+                             f"[{d.low:+.3f}, {d.high:+.3f}]")
+            lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

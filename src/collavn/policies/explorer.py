@@ -1,0 +1,194 @@
+"""The goal-blind explorer: drive straight at full speed, turn away when blocked.
+
+It never looks at the goal image. From its own depth panorama alone (no map, no
+privileged pose) it finds the obstacle points around it, measures how far it could
+drive straight in every panorama direction before its body would touch one, and:
+
+- if the way ahead is clear, drives straight ahead — at full speed, or just short of
+  the obstacle when that is nearer than one step's travel;
+- if blocked — or if its odometry says the last drive fell short (something below
+  the camera's view, or the navigation grid's 10 cm cells, stopped it) — turns in
+  place towards an open direction: one whose free run is
+  close to the longest (within ``open_fraction`` of it), avoiding the half-turn back
+  when any other is open. Among those it chooses at random, from a generator
+  private to the agent and the episode, so ties are broken without bias.
+
+Driving and turning are never mixed, so the robot only moves along straight segments
+it has seen to be free; it collides only with what its panorama cannot see (a
+teammate stepping in, or an obstacle between two rays of a coarse panorama).
+
+**It is the bar a goal-using agent must clear.** Because easy goals are 1.5–3 m away
+and success needs only passing within 1 m, covering ground quickly already succeeds
+often: a previous measurement found such an explorer at ~0.62 SR on easy val
+episodes (CommonGoal, N = 2) against random's ~0.40; this one scores 0.590 against
+random's 0.375 on 200 easy val episodes (CommonGoal, N = 2, 128×32 panoramas; paired
+difference +0.215, 95 % interval [+0.152, +0.275], ``collavn compare``). A learned
+agent that does not beat it has not shown that it uses the goal. (Its DTS is worse
+than random's: when it misses, it has driven far away.)
+
+Determinism: each agent's generator is seeded at the start of its episode
+(``obs["step"] == 0``) from the policy seed, the agent's index and the bytes of its
+first panorama, so an episode plays the same whatever the batch size or order, and
+agents and episodes do not share random draws. Needs ``EnvConfig(depth=True)``.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from collavn.policies.base import CommStats
+from collavn.simulation.kinematics import AgentParams
+
+
+class ExplorerPolicy:
+    """Straight ahead until blocked, then turn to an open direction (seeded ties).
+
+    Args:
+        seed: Seeds every agent's per-episode generator.
+        params: The robot (radius, speeds, step length).
+        margin: Extra clearance kept from obstacle points, metres (covers the 10 cm
+            navigation grid and the gaps between rays).
+        min_advance: Drive only if at least this many metres are free ahead.
+        open_fraction: A direction is open if its free run is at least this
+            fraction of the longest one.
+        camera_height: Camera height above the floor (``EnvConfig.camera_height``).
+        fov_deg: The panorama's vertical field of view.
+        band: Heights above the floor between which a hit is an obstacle (the
+            navigation grid's ``step_height`` and ``agent_height``): lower is floor
+            or a rug, higher (ceilings, lintels) passes over the robot.
+    """
+
+    def __init__(self, seed: int = 0, params: AgentParams | None = None, margin: float = 0.12,
+                 min_advance: float = 0.25, open_fraction: float = 0.8,
+                 camera_height: float = 0.9, fov_deg: float = 90.0,
+                 band: tuple[float, float] = (0.05, 1.0)) -> None:
+        self.seed = seed
+        self.params = params or AgentParams()
+        self.margin, self.min_advance, self.open_fraction = margin, min_advance, open_fraction
+        self.camera_height, self.fov = camera_height, np.deg2rad(fov_deg)
+        self.band = band
+
+    def initial_state(self, num_envs: int, num_agents: int) -> ExplorerState:
+        """Fresh generators (re-seeded when each agent's episode starts), no drive yet."""
+        rngs = [[np.random.default_rng([self.seed, n]) for n in range(num_agents)]
+                for _ in range(num_envs)]
+        return ExplorerState(rngs, np.zeros((num_envs, num_agents)))
+
+    def communication(self) -> CommStats:
+        """The explorer never talks."""
+        return CommStats()
+
+    def act(self, obs: dict[str, np.ndarray], state: ExplorerState
+            ) -> tuple[np.ndarray, ExplorerState]:
+        """``(E, N, 2)`` actions: full speed ahead, or a turn in place when blocked."""
+        if "depth" not in obs:
+            raise KeyError("the explorer needs depth observations: EnvConfig(depth=True)")
+        depth, active, step = obs["depth"], obs["active"], obs["step"]
+        moved = np.linalg.norm(np.asarray(obs["pose_delta"])[..., :2], axis=-1)
+        bumped = moved < state.expected - 0.01  # fell short by more than 1 cm
+        actions = np.zeros((*active.shape, 2))
+        for e, n in zip(*np.nonzero(active), strict=True):
+            if step[e, n] == 0:
+                state.rngs[e][n] = self._episode_rng(n, obs["panorama"][e, n])
+                bumped[e, n] = False
+            free = free_runs(depth[e, n], self.radius, self.camera_height, self.fov, self.band)
+            actions[e, n] = self._decide(free, bool(bumped[e, n]), state.rngs[e][n])
+        p = self.params
+        state.expected = np.where(active, actions[..., 0] * p.max_linear * p.step_seconds, 0.0)
+        return actions, state
+
+    @property
+    def radius(self) -> float:
+        """Body radius plus the safety margin, metres."""
+        return self.params.radius + self.margin
+
+    def _episode_rng(self, agent: int, panorama: np.ndarray) -> np.random.Generator:
+        return np.random.default_rng([self.seed, agent,
+                                      zlib.crc32(np.ascontiguousarray(panorama).tobytes())])
+
+    def _decide(self, free: np.ndarray, bumped: bool, rng: np.random.Generator) -> np.ndarray:
+        """Action ``(2,)`` from the free run ``(W,)`` of every panorama column.
+
+        ``bumped``: the last drive fell short (odometry), so something the panorama does
+        not show is ahead; turn away from straight ahead whatever the depth says.
+        """
+        p = self.params
+        width = len(free)
+        ahead = float(free[width // 2])
+        if ahead >= self.min_advance and not bumped:
+            return np.array([min(1.0, ahead / (p.max_linear * p.step_seconds)), 0.0])
+        azimuth = np.abs(panorama_azimuths(width))
+        allowed = azimuth >= np.pi / 4 if bumped else np.ones(width, bool)
+        is_open = allowed & (free >= self.open_fraction * free[allowed].max())
+        if (is_open & (azimuth <= 0.75 * np.pi)).any():  # avoid the half-turn back
+            is_open &= azimuth <= 0.75 * np.pi
+        target = float(panorama_azimuths(width)[rng.choice(np.flatnonzero(is_open))])
+        turn = target / (p.max_angular * p.step_seconds)  # azimuths lie in (−π, π]
+        return np.array([0.0, np.clip(turn, -1.0, 1.0)])
+
+
+@dataclass
+class ExplorerState:
+    """Per-agent memory of the explorer.
+
+    Attributes:
+        rngs: ``[E][N]`` generators, re-seeded at each agent's episode start.
+        expected: ``(E, N)`` metres the last action should have driven (0 for a turn).
+    """
+
+    rngs: list[list[np.random.Generator]]
+    expected: np.ndarray
+
+
+def panorama_azimuths(width: int) -> np.ndarray:
+    """``(W,)`` azimuth of each column relative to the heading (CCW positive)."""
+    return 2 * np.pi * (0.5 - np.arange(width) / width)
+
+
+def obstacle_points(depth: np.ndarray, camera_height: float = 0.9, fov: float = np.pi / 2,
+                    band: tuple[float, float] = (0.05, 1.0)) -> np.ndarray:
+    """The nearest obstacle hit of each panorama column, ``(K, 2)`` (forward, left) metres.
+
+    Only the nearest hit of a column matters for :func:`free_runs`: along one azimuth a
+    nearer point blocks every direction a farther one does, and sooner.
+
+    Args:
+        depth: ``(H, W)`` distance along each ray in metres (0 = no hit).
+        camera_height: Camera height above the floor, metres.
+        fov: Vertical field of view, radians.
+        band: Heights above the floor between which a hit is an obstacle.
+    """
+    h, w = depth.shape
+    elevation = (fov / 2) * (1 - (2 * np.arange(h) + 1) / h)
+    height = camera_height + depth * np.sin(elevation)[:, None]
+    horizontal = depth * np.cos(elevation)[:, None]
+    hit = (depth > 0) & (height > band[0]) & (height < band[1])
+    nearest = np.where(hit, horizontal, np.inf).min(axis=0)
+    seen = np.isfinite(nearest)
+    r, a = nearest[seen], panorama_azimuths(w)[seen]
+    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+
+
+def free_runs(depth: np.ndarray, radius: float, camera_height: float = 0.9,
+              fov: float = np.pi / 2, band: tuple[float, float] = (0.05, 1.0),
+              horizon: float = 10.0) -> np.ndarray:
+    """``(W,)`` metres a disc of ``radius`` can drive along each column's direction.
+
+    A straight run along direction ``θ`` ends where the disc first touches an obstacle
+    point: for a point at ``(along, across)`` in the rotated frame, with
+    ``|across| < radius``, contact happens after ``along − √(radius² − across²)``.
+    Directions with no obstacle within ``horizon`` metres get ``horizon``.
+    """
+    points = obstacle_points(depth, camera_height, fov, band)
+    theta = panorama_azimuths(depth.shape[1])
+    c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
+    along = c * points[:, 0] + s * points[:, 1]  # (W, K)
+    across = -s * points[:, 0] + c * points[:, 1]
+    inside = np.abs(across) < radius
+    contact = along - np.sqrt(np.maximum(radius**2 - across**2, 0.0))
+    blocking = inside & (along > 0)  # points beside or behind do not stop a forward run
+    run = np.where(blocking, contact, horizon).min(axis=1, initial=horizon)
+    return np.maximum(run, 0.0)

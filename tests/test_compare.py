@@ -1,0 +1,115 @@
+"""Paired bootstrap comparisons: hand-computed differences, a slow reference, refusals."""
+
+import json
+
+import numpy as np
+import pytest
+
+from collavn.cli import main
+from collavn.errors import CollavnError
+from collavn.evaluation.compare import (
+    check_same_episodes,
+    compare_records,
+    episode_scores,
+    paired_bootstrap,
+)
+from collavn.evaluation.runner import write_records
+from collavn.metrics import AgentRecord, compute_metrics
+
+
+def records(outcomes: dict[str, tuple[str, tuple[int, ...]]], path: float) -> list[AgentRecord]:
+    """``{episode: (difficulty, success per agent)}``; start 2 m, a success ends 0.5 m
+    from the goal after driving ``path`` metres, a failure ends 2.5 m away after 3 m."""
+    return [AgentRecord(eid, n, diff, bool(s), 10 if s else 80, path if s else 3.0, 2.0,
+                        0.5 if s else 2.5)
+            for eid, (diff, successes) in outcomes.items() for n, s in enumerate(successes)]
+
+
+A = records({"e1": ("easy", (1, 0)), "e2": ("easy", (0, 0)), "e3": ("easy", (1, 1)),
+             "e4": ("easy", (0, 0)), "e5": ("medium", (0, 0)), "e6": ("medium", (1, 0))},
+            path=2.0)
+B = records({"e1": ("easy", (1, 1)), "e2": ("easy", (1, 0)), "e3": ("easy", (1, 1)),
+             "e4": ("easy", (0, 1)), "e5": ("medium", (1, 1)), "e6": ("medium", (1, 0))},
+            path=4.0)
+
+
+def test_differences_match_a_hand_computation_and_lie_in_their_intervals():
+    c = compare_records(A, B, "a", "b", samples=2000, seed=1)
+    # easy: SR 3/8 → 6/8. SPL: A's successes drove l_g (term 1), B's twice l_g (term ½):
+    # 3/8 → 3/8. DTS: failures end 1.5 m outside the radius: A 5·1.5/8 → B 2·1.5/8.
+    expected = {"easy": {"SR": (3 / 8, 6 / 8), "SPL": (3 / 8, 3 / 8),
+                         "DTS": (7.5 / 8, 3 / 8)},
+                "medium": {"SR": (1 / 4, 3 / 4), "SPL": (1 / 4, 3 / 8),
+                           "DTS": (4.5 / 4, 1.5 / 4)},
+                "overall": {"SR": (4 / 12, 9 / 12), "SPL": (4 / 12, 4.5 / 12),
+                            "DTS": (12 / 12, 4.5 / 12)}}
+    assert set(c.groups) == set(expected)  # no hard episodes: no hard row
+    assert c.episodes == {"easy": 4, "medium": 2, "overall": 6}
+    for group, metrics in expected.items():
+        for m, (a, b) in metrics.items():
+            d = c.groups[group][m]
+            assert (d.a, d.b, d.delta) == pytest.approx((a, b, b - a)), (group, m)
+            assert d.low <= d.delta <= d.high, (group, m)
+    assert c.groups["overall"]["SR"].low >= 0  # B succeeds in every episode A does
+
+
+def test_bootstrap_matches_a_slow_reference_over_record_lists():
+    a, b = episode_scores(A), episode_scores(B)
+    fast = paired_bootstrap(a, b, samples=300, rng=np.random.default_rng(7))
+    ids = list(a.episode_ids)
+    by_episode = {name: {eid: [r for r in recs if r.episode_id == eid] for eid in ids}
+                  for name, recs in (("a", A), ("b", B))}
+    idx = np.random.default_rng(7).integers(0, len(ids), size=(300, len(ids)))
+    deltas = {m: [] for m in ("SR", "SPL", "DTS")}
+    for row in idx:
+        ma, mb = (compute_metrics([r for k in row for r in by_episode[name][ids[k]]])
+                  for name in ("a", "b"))
+        for m in deltas:
+            deltas[m].append(mb[m] - ma[m])
+    for m, values in deltas.items():
+        low, high = np.percentile(values, [2.5, 97.5])
+        assert (fast[m].low, fast[m].high) == pytest.approx((low, high)), m
+
+
+def test_identical_evaluations_differ_by_exactly_zero():
+    c = compare_records(A, A, samples=100)
+    for diffs in c.groups.values():
+        for d in diffs.values():
+            assert d.delta == d.low == d.high == 0.0
+
+
+def test_refuses_different_episode_sets_naming_the_missing_ones():
+    fewer = [r for r in B if r.episode_id != "e4"]
+    extra = records({"e9": ("easy", (1, 1))}, path=2.0)
+    with pytest.raises(CollavnError, match=r"different episode sets: 1 episode\(s\) only in "
+                                           r"a \(e\.g\. e4\); 1 episode\(s\) only in b "
+                                           r"\(e\.g\. e9\)"):
+        check_same_episodes(A, fewer + extra, "a", "b")
+    with pytest.raises(CollavnError, match="only in a"):
+        check_same_episodes(A, [r for r in B if (r.episode_id, r.agent) != ("e2", 1)], "a", "b")
+
+
+def test_refuses_different_datasets():
+    other = [AgentRecord("val/x/" + r.episode_id, r.agent, r.difficulty, r.success, r.steps,
+                         r.path_length, r.start_distance, r.final_distance) for r in B]
+    with pytest.raises(CollavnError, match=r"different datasets \(no episode in common\)"):
+        check_same_episodes(A, other, "a", "b")
+    moved = [AgentRecord(r.episode_id, r.agent, r.difficulty, r.success, r.steps,
+                         r.path_length, r.start_distance + 0.5, r.final_distance) for r in B]
+    with pytest.raises(CollavnError, match="share episode ids but not episodes"):
+        check_same_episodes(A, moved, "a", "b")
+
+
+def test_cli_compare_markdown_json_and_refusal(tmp_path, capsys):
+    for name, recs in (("base", A), ("new", B), ("other", B[:-2])):
+        write_records(tmp_path / name / "records.jsonl", recs)
+    dirs = [str(tmp_path / n) for n in ("base", "new")]
+    assert main(["compare", *dirs, "--samples", "200", "--json"]) == 0
+    [out] = json.loads(capsys.readouterr().out)
+    assert (out["baseline"], out["method"], out["samples"]) == ("base", "new", 200)
+    assert out["groups"]["overall"]["SR"]["delta"] == pytest.approx(5 / 12)
+    assert main(["compare", *dirs, "--samples", "200"]) == 0
+    table = capsys.readouterr().out
+    assert "| new | overall | 6 | 0.333 → 0.750 | +0.417 [" in table
+    assert main(["compare", dirs[0], str(tmp_path / "other")]) == 2
+    assert "1 episode(s) only in base (e.g. e6)" in capsys.readouterr().err
