@@ -113,3 +113,21 @@ def test_cli_compare_markdown_json_and_refusal(tmp_path, capsys):
     assert "| new | overall | 6 | 0.333 → 0.750 | +0.417 [" in table
     assert main(["compare", dirs[0], str(tmp_path / "other")]) == 2
     assert "1 episode(s) only in base (e.g. e6)" in capsys.readouterr().err
+
+
+def test_single_evaluation_interval_contains_its_value_and_narrows_with_more_episodes():
+    from collavn.evaluation.compare import sr_interval
+    from collavn.metrics import AgentRecord
+
+    def recs(k):
+        return [AgentRecord(episode_id=f"e{i}", agent=a, difficulty="easy",
+                            success=(i + a) % 3 != 0, steps=10, path_length=2.0,
+                            start_distance=2.0, final_distance=0.5, collisions=0)
+                for i in range(k) for a in range(2)]
+
+    small, big = sr_interval(recs(30), 2000, 0), sr_interval(recs(300), 2000, 0)
+    for value, low, high, _ in (small, big):
+        assert low <= value <= high
+    assert small[3] == 30 and big[3] == 300
+    assert small[0] == pytest.approx(40 / 60)
+    assert big[2] - big[1] < small[2] - small[1]

@@ -23,7 +23,7 @@ def experiment(tmp_path_factory):
     out = tmp_path_factory.mktemp("exp") / "x"
     args = ["experiment", "--out", str(out), "--budget-minutes", "0.3", "--episodes", "1",
             "--test-scenes", "procedural:1", "--num-envs", "3", "--samples", "200",
-            "--no-progress", "--torch-threads", "1", "--train-args", TINY]
+            "--no-progress", "--torch-threads", "1", f"--train-args={TINY}"]
     assert main(args) == 0
     return out, args
 

@@ -11,7 +11,8 @@ from collavn.experiments import ExperimentConfig, run_experiment, write_report
 class Experiment(ExperimentConfig):
     """Datasets, training of il / no-com / no-mem / ours, evaluation of them and of random,
     explorer and oracle, comparisons, Ad-hoCoop, and ``OUT/report.md``; run again with
-    the same arguments to resume."""
+    the same arguments to resume.
+    """
 
     def run(self) -> int:
         """Run or resume every stage; print where the report is."""

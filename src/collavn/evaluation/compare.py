@@ -243,3 +243,20 @@ def comparisons_to_markdown(comparisons: Sequence[Comparison]) -> str:
                              f"[{d.low:+.3f}, {d.high:+.3f}]")
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def sr_interval(records: Sequence[AgentRecord], samples: int = 5000, seed: int = 0,
+                metric: str = "SR") -> tuple[float, float, float, int]:
+    """One evaluation's metric with its 95 % bootstrap interval over episodes.
+
+    The paired bootstrap against an all-zero baseline on the same episodes, so one
+    resampling code serves both.
+
+    Returns:
+        ``(value, low, high, episodes)``.
+    """
+    scores = episode_scores(records, (metric,))
+    zero = EpisodeScores(scores.episode_ids, scores.difficulty, scores.agents,
+                         {metric: np.zeros_like(scores.sums[metric])})
+    d = paired_bootstrap(zero, scores, samples, np.random.default_rng(seed))[metric]
+    return d.b, d.low, d.high, len(scores.episode_ids)

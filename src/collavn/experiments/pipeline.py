@@ -14,6 +14,7 @@ set by :class:`ExperimentConfig`, not by the budget.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import shlex
@@ -153,7 +154,7 @@ def stages(cfg: ExperimentConfig) -> list[Stage]:
                 "--torch-threads", str(cfg.torch_threads),
                 *([] if cfg.progress else ["--no-progress"]), *shlex.split(cfg.train_args)]
         found.append(Stage(f"train-{method}", ["collavn", "train", *args],
-                           lambda args=args: _train(args)))
+                           functools.partial(_train, args)))
     for name in (*LEARNED, *BASELINES):
         policy = str(out / "runs" / name / "checkpoint.pt") if name in LEARNED else name
         found.append(_evaluation(cfg, f"eval-{name}", policy, test, out / "eval" / name,

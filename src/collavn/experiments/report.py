@@ -160,9 +160,8 @@ def _bar_chart(intervals: dict[str, tuple[float, float, float, int]], path: Path
 
 def _training_curves(out: Path, methods: tuple[str, ...], path: Path) -> Path:
     """Training success rate against agent-steps per method, from the TensorBoard events."""
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-
     import matplotlib
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
