@@ -13,7 +13,7 @@ import sys
 
 import tyro
 
-from collavn.errors import CollavnError
+from collavn.errors import CollavnError, Interrupted
 
 #: command words → (module, class or function, one line). Add a line to add a command.
 COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
@@ -58,6 +58,16 @@ def main(argv: list[str] | None = None) -> int:
             except CollavnError as e:
                 print(f"collavn: error: {e}", file=sys.stderr)
                 return 2
+            except OSError as e:  # disk full, permissions, … outside our own checks
+                print(f"collavn: error: {e.strerror or e}"
+                      f"{f': {e.filename}' if e.filename else ''}", file=sys.stderr)
+                return 2
+            except Interrupted as e:
+                print(f"collavn: {e}", file=sys.stderr)
+                return 128 + e.signum
+            except KeyboardInterrupt:
+                print("collavn: interrupted", file=sys.stderr)
+                return 130
     print(_usage(), file=sys.stderr if args and args[0] not in ("-h", "--help") else sys.stdout)
     return 0 if not args or args[0] in ("-h", "--help") else 2
 
