@@ -9,6 +9,7 @@ from typing import Annotated, Any
 
 import tyro
 
+from collavn.files import check_writable_file
 from collavn.scenes.loading import load_scene
 from collavn.scenes.summary import scene_summary
 
@@ -30,6 +31,8 @@ class SceneInfo:
 
     def run(self) -> int:
         """Load, summarise, print; optionally draw."""
+        if self.map is not None:
+            check_writable_file(self.map, "--map")
         options: dict[str, Any] = {}
         if not self.scene.startswith("procedural:"):
             options = {"up_axis": self.up_axis, "floor_height": self.floor_height}

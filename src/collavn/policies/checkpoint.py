@@ -33,7 +33,7 @@ from collavn.models.config import ModelConfig
 from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
-from collavn.policies.base import CommStats
+from collavn.policies.base import CommStats, EpisodeRandom
 
 #: Bumped when the checkpoint layout or the meaning of its weights changes.
 FORMAT_VERSION = 3
@@ -145,15 +145,15 @@ class CheckpointPolicy:
 
     Numpy observations go to torch on the model's device; ``episode_start`` comes from
     ``obs["step"] == 0``; actions are the policy mean clipped to [-1, 1], or with
-    ``stochastic`` samples of the Gaussian (from a generator seeded by ``seed``). Works
-    for any number of agents (Ad-hoCoop; ``il`` copies).
+    ``stochastic`` samples of the Gaussian (seeded per episode by ``seed`` and
+    ``obs["episode_seed"]``). Works for any number of agents (Ad-hoCoop; ``il`` copies).
     """
 
     def __init__(self, model: ActorCritic, stochastic: bool = False, seed: int = 0) -> None:
         self.model = model.eval()
         self.keys = policy_keys(model.cfg.map.use_depth)
         self.stochastic = stochastic
-        self.seed = seed
+        self.random = EpisodeRandom(seed)
         self.comm = CommStats()
 
     def initial_state(self, num_envs: int, num_agents: int) -> AgentState:
@@ -162,21 +162,24 @@ class CheckpointPolicy:
 
     def act(self, obs: dict[str, np.ndarray], state: AgentState
             ) -> tuple[np.ndarray, AgentState]:
-        """Actions ``(E, N, 2)`` (the mean, or a sample if ``stochastic``), next state."""
+        """Actions ``(E, N, 2)`` (the mean, or a sample if ``stochastic``), next state.
+
+        Samples are ``mean + std · ε`` with ``ε`` drawn per episode
+        (:class:`~collavn.policies.base.EpisodeRandom`); torch's random state is not
+        used.
+        """
         device = self.model.device
         inputs = obs_to_torch(obs, self.keys, device), state, episode_start(obs, device)
-        if not self.stochastic:
-            out = self.model.act(*inputs, deterministic=True)
-        else:
-            # Sampling draws from torch's global generator: reseed it per call
-            # (reproducible per seed) inside fork_rng, so the caller's random state is
-            # left as it was.
-            with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
-                torch.manual_seed(self.seed)
-                self.seed += 1
-                out = self.model.act(*inputs)
-        self.comm.add(tally(out.message, inputs[0]["active"]))
-        return out.action.cpu().numpy().astype(np.float64), out.state
+        with torch.no_grad():
+            step = self.model(*inputs)
+        raw = step.dist.mean
+        if self.stochastic:
+            n = obs["active"].shape[1]
+            eps = torch.as_tensor(self.random.normal(obs, (n, raw.shape[-1])),
+                                  dtype=raw.dtype, device=device)
+            raw = raw + step.dist.base_dist.scale * eps
+        self.comm.add(tally(step.message, inputs[0]["active"]))
+        return raw.clamp(-1.0, 1.0).cpu().numpy().astype(np.float64), step.state
 
     def communication(self) -> CommStats:
         """Communication of every call to :meth:`act` so far."""
