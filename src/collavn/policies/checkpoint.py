@@ -147,6 +147,10 @@ class CheckpointPolicy:
     ``obs["step"] == 0``; actions are the policy mean clipped to [-1, 1], or with
     ``stochastic`` samples of the Gaussian (seeded per episode by ``seed`` and
     ``obs["episode_seed"]``). Works for any number of agents (Ad-hoCoop; ``il`` copies).
+
+    The model runs one env at a time: agents only interact within their env, and a
+    batch of another size rounds floating point differently, so running envs
+    together would let ``num_envs`` change the results.
     """
 
     def __init__(self, model: ActorCritic, stochastic: bool = False, seed: int = 0) -> None:
@@ -169,17 +173,24 @@ class CheckpointPolicy:
         used.
         """
         device = self.model.device
-        inputs = obs_to_torch(obs, self.keys, device), state, episode_start(obs, device)
+        obs_t, start = obs_to_torch(obs, self.keys, device), episode_start(obs, device)
+        means, scales, states = [], [], []
         with torch.no_grad():
-            step = self.model(*inputs)
-        raw = step.dist.mean
+            for e in range(start.shape[0]):  # one env at a time: see the class docstring
+                one = slice(e, e + 1)
+                step = self.model({k: v[one] for k, v in obs_t.items()},
+                                  state.select_envs(one), start[one])
+                means.append(step.dist.mean)
+                scales.append(step.dist.base_dist.scale)
+                states.append(step.state)
+                self.comm.add(tally(step.message, obs_t["active"][one]))
+        raw = torch.cat(means)
         if self.stochastic:
             n = obs["active"].shape[1]
             eps = torch.as_tensor(self.random.normal(obs, (n, raw.shape[-1])),
                                   dtype=raw.dtype, device=device)
-            raw = raw + step.dist.base_dist.scale * eps
-        self.comm.add(tally(step.message, inputs[0]["active"]))
-        return raw.clamp(-1.0, 1.0).cpu().numpy().astype(np.float64), step.state
+            raw = raw + torch.cat(scales) * eps
+        return raw.clamp(-1.0, 1.0).cpu().numpy().astype(np.float64), AgentState.cat(states)
 
     def communication(self) -> CommStats:
         """Communication of every call to :meth:`act` so far."""
@@ -199,8 +210,9 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
     try:
         model.load_state_dict(payload["model"])
     except (RuntimeError, KeyError) as e:
+        detail = "; ".join(line.strip() for line in str(e).splitlines()[1:3])
         raise CheckpointError(f"checkpoint {path}: its weights do not fit its model "
-                              f"config: {e}") from e
+                              f"config ({detail or e})") from e
     _, h, w = model_cfg.panorama_shape
     overrides: dict[str, Any] = {"panorama_width": w, "panorama_height": h,
                                  "goal_size": model_cfg.goal_shape[-1]}
