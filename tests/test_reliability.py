@@ -24,13 +24,13 @@ import trimesh
 
 from collavn import configs
 from collavn.cli import main
+from collavn.datasets.episode import SceneRef
 from collavn.datasets.generator import sample_episodes
 from collavn.datasets.storage import (
     EpisodeFile,
     load_episode_file,
     save_episode_file,
 )
-from collavn.datasets.episode import SceneRef
 from collavn.envs import EnvConfig
 from collavn.errors import CheckpointError, DatasetError, SceneWarning
 from collavn.evaluation.runner import evaluate
@@ -133,7 +133,7 @@ def test_every_bad_argument_gives_one_line_collavn_error(files, capsys):
             shutil.rmtree(files / "eval-new")
         try:
             rc = main(argv)
-        except BaseException as e:  # noqa: BLE001 - a traceback is the failure we look for
+        except BaseException as e:
             failures.append(f"{argv}: raised {type(e).__name__}: {e}")
             continue
         err = capsys.readouterr().err.strip().splitlines()
@@ -163,7 +163,7 @@ def test_a_flipped_bit_in_a_checkpoint_is_refused_and_stale_temp_files_cleaned(t
     data = bytearray(path.read_bytes())
     data[len(data) // 2] ^= 0x01
     path.write_bytes(bytes(data))
-    with pytest.raises(CheckpointError, match="is damaged.*sha256"):
+    with pytest.raises(CheckpointError, match=r"is damaged.*sha256"):
         load_checkpoint(path)
     (tmp_path / ".ck.pt.abc123.tmp").write_bytes(b"left by a kill mid-save")
     save_checkpoint(path, {"model": {"w": torch.zeros(3)}})
@@ -181,7 +181,7 @@ def test_a_full_disk_while_saving_a_checkpoint_is_an_error_and_keeps_the_old_one
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr("collavn.policies.checkpoint.atomic_write", full)
-    with pytest.raises(CheckpointError, match="No space left.*unchanged"):
+    with pytest.raises(CheckpointError, match=r"No space left.*unchanged"):
         save_checkpoint(path, {"x": torch.arange(5)})
     monkeypatch.undo()
     assert load_checkpoint(path)["x"].tolist() == [0, 1, 2]

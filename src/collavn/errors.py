@@ -35,7 +35,7 @@ class ConfigError(CollavnError):
     """
 
 
-class Interrupted(BaseException):  # noqa: N818 - a control-flow signal, like KeyboardInterrupt
+class Interrupted(BaseException):
     """A second SIGINT/SIGTERM: stop at once, without saving (see ``training.trainer``).
 
     Attributes:

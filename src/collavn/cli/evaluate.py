@@ -7,13 +7,13 @@ import sys
 from dataclasses import dataclass
 
 from collavn.errors import CollavnError
-from collavn.files import prepare_output_dir
 from collavn.evaluation.benchmark import (
     EvalConfig,
     load_dataset,
     run_evaluation,
     write_results,
 )
+from collavn.files import prepare_output_dir
 
 
 @dataclass(frozen=True)

@@ -77,8 +77,7 @@ class EpisodeFile:
         return _hash(self.to_json())
 
     def check_scene(self, scene: Scene, path: str | Path = "episode file") -> None:
-        """Refuse a scene other than the one the episodes were generated for, and
-        episodes whose recomputed start distances do not fit their difficulty.
+        """Refuse another scene than the episodes', or start distances it disagrees with.
 
         The scene to check is usually ``load_scene(content.scene.spec)``: the source
         and load options this file recorded.
@@ -172,8 +171,8 @@ def load_episode_file(path: str | Path, scene: Scene | None = None) -> EpisodeFi
             episodes=tuple(Episode.from_json(e, ref, task) for e in doc["episodes"]))
     except (KeyError, TypeError) as e:
         raise DatasetError(f"{path}: malformed episode file: {e}") from e
-    for e in content.episodes:
-        check_bin(e, e.start_distances, path, "stored")
+    for episode in content.episodes:
+        check_bin(episode, episode.start_distances, path, "stored")
     if scene is not None:
         content.check_scene(scene, path)
     return content

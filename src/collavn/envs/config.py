@@ -9,8 +9,8 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
-from collavn.datasets.episode import DIFFICULTY_BINS, Episode
 from collavn.configs import check_count, check_number
+from collavn.datasets.episode import DIFFICULTY_BINS, Episode
 from collavn.errors import CollavnError, ConfigError
 from collavn.scenes.scene import Scene
 from collavn.tasks import TASKS, TaskName

@@ -8,7 +8,6 @@ the same model runs with any number of agents.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
 import torch

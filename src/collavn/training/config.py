@@ -62,7 +62,8 @@ METHODS: dict[str, MethodSpec] = {
 }
 
 #: Fields that steer a run without changing its results (allowed to differ on resume).
-RUN_CONTROL_FIELDS = ("run.out", "run.resume", "run.overwrite", "run.total_steps", "run.time_budget_minutes",
+RUN_CONTROL_FIELDS = ("run.out", "run.resume", "run.overwrite",
+                      "run.total_steps", "run.time_budget_minutes",
                       "run.progress", "run.device", "run.log_interval", "run.torch_threads",
                       "env.render_threads")
 

@@ -47,13 +47,13 @@ from collavn.scenes.splits import scene_specs
 from collavn.training import distributed
 from collavn.training.checkpoint import check_config, differences, saved_config
 from collavn.training.config import TrainConfig
-from collavn.training.interrupt import StopRequest
 from collavn.training.imitation import (
     expert_actions,
     expert_probability,
     imitation_update,
     mix_actions,
 )
+from collavn.training.interrupt import StopRequest
 from collavn.training.map_training import MapTrainer, policy_parameters
 from collavn.training.ppo import ppo_update
 from collavn.training.rollout import Rollout, compute_gae
@@ -291,8 +291,10 @@ def restore(run: Run, path: Path) -> None:
 
 
 def out_of_budget(run: Run, stopping: bool = False) -> bool:
-    """Total steps reached, the wall-clock budget spent, or ``stopping`` (a signal at a
-    sync point); rank 0 decides for all."""
+    """Total steps reached, budget spent, or ``stopping``; rank 0 decides for all.
+
+    ``stopping``: a signal arrived and the run is at a sync point.
+    """
     cfg = run.cfg
     done = stopping or run.agent_steps >= cfg.run.total_steps
     if cfg.run.time_budget_minutes > 0:
