@@ -54,6 +54,6 @@ def test_a_second_run_does_no_stage_twice_and_other_arguments_are_refused(experi
     printed = capsys.readouterr().out
     assert printed.count("done before, skipped") == len(before)
     assert {p.name: p.stat().st_mtime_ns for p in (out / "stages").glob("*.json")} == before
-    with pytest.raises(CollavnError, match="other arguments.*episodes"):
+    with pytest.raises(CollavnError, match=r"other arguments.*episodes"):
         run_experiment(ExperimentConfig(out=out, episodes=2, budget_minutes=0.3,
                                         test_scenes=("procedural:1",)), write_report)

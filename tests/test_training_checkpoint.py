@@ -30,7 +30,7 @@ def test_save_is_atomic_and_leaves_the_old_file_on_failure(tmp_path, monkeypatch
         raise OSError("disk full")
 
     monkeypatch.setattr(torch, "save", broken_save)
-    with pytest.raises(OSError):
+    with pytest.raises(OSError):  # while serialising, before any file is touched
         save_checkpoint(path, {"x": torch.arange(5)})
     monkeypatch.undo()
     assert load_checkpoint(path)["x"].tolist() == [0, 1, 2]
@@ -105,7 +105,8 @@ def test_checkpoint_loads_as_an_evaluation_policy_for_any_n(resumed_and_straight
         obs = {"panorama": rng.integers(0, 255, (1, n, 3, 16, 64), dtype=np.uint8),
                "goal": rng.integers(0, 255, (1, n, 3, 16, 16), dtype=np.uint8),
                "pose_delta": np.zeros((1, n, 3), np.float32),
-               "active": np.ones((1, n), bool), "step": np.zeros((1, n), np.int64)}
+               "active": np.ones((1, n), bool), "step": np.zeros((1, n), np.int64),
+           "episode_seed": np.zeros(1, np.int64)}
         state = policy.initial_state(1, n)
         a1, state = policy.act(obs, state)
         a2, _ = policy.act(obs, policy.initial_state(1, n))
@@ -135,7 +136,8 @@ def test_stochastic_evaluation_samples_reproducibly_and_leaves_torch_rng_alone(
     obs = {"panorama": rng.integers(0, 255, (1, 2, 3, 16, 64), dtype=np.uint8),
            "goal": rng.integers(0, 255, (1, 2, 3, 16, 16), dtype=np.uint8),
            "pose_delta": np.zeros((1, 2, 3), np.float32),
-           "active": np.ones((1, 2), bool), "step": np.zeros((1, 2), np.int64)}
+           "active": np.ones((1, 2), bool), "step": np.zeros((1, 2), np.int64),
+           "episode_seed": np.zeros(1, np.int64)}
     mean_policy, _ = load_policy(root / "straight" / CHECKPOINT)
     mean, _ = mean_policy.act(obs, mean_policy.initial_state(1, 2))
     draws = []

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import typing
 from typing import Any, TypeVar
 
@@ -71,3 +72,28 @@ def differences(a: Any, b: Any, prefix: str = "") -> dict[str, tuple[Any, Any]]:
             out.update(differences(a.get(k), b.get(k), f"{prefix}{k}."))
         return out
     return {} if a == b else {prefix[:-1]: (a, b)}
+
+
+def check_count(name: str, value: int, minimum: int = 1) -> None:
+    """Refuse an integer ``value`` below ``minimum`` (a count, a size, an interval).
+
+    Raises:
+        ConfigError: naming the option (``name``, e.g. ``--num-envs``) and the value.
+    """
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ConfigError(f"{name} must be an integer ≥ {minimum}, got {value!r}")
+
+
+def check_number(name: str, value: float, minimum: float = 0.0, *,
+                 allow_minimum: bool = False) -> None:
+    """Refuse a NaN, infinite, or too small number (``> minimum``, or ``≥`` if allowed).
+
+    Raises:
+        ConfigError: naming the option and the value.
+    """
+    ok = (isinstance(value, int | float) and not isinstance(value, bool)
+          and math.isfinite(value)
+          and (value >= minimum if allow_minimum else value > minimum))
+    if not ok:
+        bound = f"≥ {minimum:g}" if allow_minimum else f"> {minimum:g}"
+        raise ConfigError(f"{name} must be a finite number {bound}, got {value!r}")

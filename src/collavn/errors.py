@@ -25,8 +25,26 @@ class CheckpointError(CollavnError, ValueError):
     """A checkpoint is unreadable or was written by a different configuration."""
 
 
-class ConfigError(CollavnError, ValueError):
-    """A configuration value or a saved configuration is invalid."""
+class ConfigError(CollavnError):
+    """A configuration value, a command-line argument or a saved configuration is invalid.
+
+    Deliberately not a ``ValueError``: tyro turns ``ValueError``s raised while it builds
+    a config into its own message box, while a ``CollavnError`` reaches the ``collavn``
+    dispatcher, which prints every refused argument the same way
+    (``collavn: error: …``, exit 2).
+    """
+
+
+class Interrupted(BaseException):
+    """A second SIGINT/SIGTERM: stop at once, without saving (see ``training.trainer``).
+
+    Attributes:
+        signum: The signal number (the process exits with ``128 + signum``).
+    """
+
+    def __init__(self, signum: int, message: str) -> None:
+        super().__init__(message)
+        self.signum = signum
 
 
 class CollavnWarning(UserWarning):

@@ -13,7 +13,7 @@ import sys
 
 import tyro
 
-from collavn.errors import CollavnError
+from collavn.errors import CollavnError, Interrupted
 
 #: command words → (module, class or function, one line). Add a line to add a command.
 COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
@@ -64,6 +64,16 @@ def main(argv: list[str] | None = None) -> int:
             except CollavnError as e:
                 print(f"collavn: error: {e}", file=sys.stderr)
                 return 2
+            except OSError as e:  # disk full, permissions, … outside our own checks
+                print(f"collavn: error: {e.strerror or e}"
+                      f"{f': {e.filename}' if e.filename else ''}", file=sys.stderr)
+                return 2
+            except Interrupted as e:
+                print(f"collavn: {e}", file=sys.stderr)
+                return 128 + e.signum
+            except KeyboardInterrupt:
+                print("collavn: interrupted", file=sys.stderr)
+                return 130
     group = [w for w in COMMANDS if len(w) > 1 and args[:1] == [w[0]]]
     if group:  # e.g. ``collavn scene --help``: the subcommands of that word
         asked = args[1:2] in (["-h"], ["--help"])

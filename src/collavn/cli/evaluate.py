@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import dataclass
 
 from collavn.errors import CollavnError
@@ -12,6 +13,7 @@ from collavn.evaluation.benchmark import (
     run_evaluation,
     write_results,
 )
+from collavn.files import prepare_output_dir
 
 
 @dataclass(frozen=True)
@@ -20,9 +22,15 @@ class Evaluate(EvalConfig):
 
     json: bool = False
     """Print the metrics as JSON instead of a table."""
+    overwrite: bool = False
+    """Replace the results in a non-empty ``--out``: the old directory is moved aside to
+    ``OUT.old-<time>`` (without it a non-empty ``--out`` is refused)."""
 
     def run(self) -> int:
-        """Evaluate, write files, print the table."""
+        """Check the output directory, evaluate, write files, print the table."""
+        moved = prepare_output_dir(self.out, overwrite=self.overwrite)
+        if moved is not None:
+            print(f"moved the previous results in {self.out} to {moved}", file=sys.stderr)
         result = run_evaluation(self, load_dataset(self))
         if not result.records:
             raise CollavnError(f"no {self.difficulty} episodes in {self.dataset}")

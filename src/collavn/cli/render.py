@@ -12,6 +12,7 @@ import tyro
 from PIL import Image
 
 from collavn.errors import RenderError
+from collavn.files import check_writable_file
 from collavn.rendering.cameras import CameraSpec
 from collavn.rendering.renderer import Renderer
 from collavn.scenes.loading import load_scene
@@ -45,14 +46,14 @@ class RenderCommand:
 
     def run(self) -> int:
         """Load the scene, render one view, write both PNGs and print their paths."""
+        check_writable_file(self.out, "--out")
+        width = (128 if self.goal else 512) if self.width is None else self.width
+        height = 128 if self.height is None else self.height
+        spec = (CameraSpec.pinhole(width, height) if self.goal
+                else CameraSpec.panorama(width, height))  # refuses bad sizes before loading
         scene = load_scene(self.load.spec(self.scene))
         pose = parse_pose(self.pose) if self.pose is not None else default_pose(scene)
-        if self.goal:
-            spec = CameraSpec.pinhole(self.width or 128, self.height or 128)
-            panorama, goal = None, spec
-        else:
-            spec = CameraSpec.panorama(self.width or 512, self.height or 128)
-            panorama, goal = spec, None
+        panorama, goal = (None, spec) if self.goal else (spec, None)
         with Renderer(scene, backend=self.backend, device=self.device, panorama=panorama,
                       goal=goal) as renderer:
             out = renderer.render(pose[None], camera="goal" if self.goal else "panorama")

@@ -9,6 +9,7 @@ from typing import Annotated
 
 import tyro
 
+from collavn.files import check_writable_file
 from collavn.scenes.loading import load_scene
 from collavn.scenes.spec import LoadOptions
 from collavn.scenes.summary import scene_summary
@@ -29,6 +30,8 @@ class SceneInfo:
 
     def run(self) -> int:
         """Load, summarise, print; optionally draw."""
+        if self.map is not None:
+            check_writable_file(self.map, "--map")
         scene = load_scene(self.load.spec(self.scene))
         info = scene_summary(scene)
         if self.map is not None:

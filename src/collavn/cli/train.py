@@ -11,10 +11,18 @@ Every field of :class:`~collavn.training.config.TrainConfig` is a flag (``--ppo.
 0.1``, ``--model.hidden-size 128``, ``--env.camera-height 1.2``); the preset (default
 ``cpu``) supplies the defaults through tyro's overridable configs. The resolved
 configuration is written to ``OUT/config.json`` and into every checkpoint.
+
+A non-empty ``--out`` is refused unless ``--resume`` (continue its checkpoint) or
+``--overwrite`` (move it aside to ``OUT.old-<time>`` and start over). Ctrl-C or SIGTERM
+stops at the next checkpoint sync point with a checkpoint and prints how to resume
+(exit 130 / 143); a second one stops at once without saving.
 """
 
 from __future__ import annotations
 
+import shlex
+import signal
+import sys
 from collections.abc import Sequence
 
 from collavn.training.config import TrainConfig, parse_train_args
@@ -31,8 +39,16 @@ def main(args: Sequence[str], prog: str = "collavn train") -> int:
     from collavn.training.trainer import train
 
     result = train(config)
+    if result.moved is not None:
+        print(f"moved the previous run in {config.run.out} to {result.moved}")
     if result.checkpoint is not None:
         sr = result.last.get("episode/success_rate", float("nan"))
         print(f"{result.iterations} updates, {result.agent_steps} agent-steps, "
               f"training SR {sr:.3f}; checkpoint {result.checkpoint}")
-    return 0
+    if result.signal is None:
+        return 0
+    again = [a for a in args if a not in ("--resume", "--overwrite")] + ["--resume"]
+    print(f"collavn: stopped by {signal.Signals(result.signal).name} after update "
+          f"{result.iterations}; checkpoint {result.checkpoint}. Continue with:\n  "
+          f"{prog} {shlex.join(again)}", file=sys.stderr)
+    return 128 + result.signal

@@ -8,6 +8,7 @@ from typing import Annotated
 
 import tyro
 
+from collavn.configs import check_count
 from collavn.errors import CollavnError
 from collavn.evaluation.runner import read_trajectories
 from collavn.viz.animate import draw_all
@@ -28,6 +29,8 @@ class Viz:
 
     def run(self) -> int:
         """Read trajectories, draw."""
+        check_count("--gifs", self.gifs, 0)
+        check_count("--panorama-width", self.panorama_width)
         path = self.records / "trajectories.jsonl" if self.records.is_dir() else self.records
         if not path.is_file():
             raise CollavnError(f"no trajectories at {path}: run `collavn evaluate` first")

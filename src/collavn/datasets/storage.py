@@ -25,7 +25,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from collavn.datasets.episode import Episode, SceneRef, check_split, check_task
+import numpy as np
+
+from collavn.datasets.episode import (
+    DIFFICULTY_BINS,
+    Episode,
+    SceneRef,
+    check_split,
+    check_task,
+    in_bin,
+)
 from collavn.errors import DatasetError
 from collavn.files import atomic_write
 from collavn.scenes.scene import Scene
@@ -68,15 +77,26 @@ class EpisodeFile:
         return _hash(self.to_json())
 
     def check_scene(self, scene: Scene, path: str | Path = "episode file") -> None:
-        """Refuse a scene other than the one the episodes were generated for.
+        """Refuse another scene than the episodes', or start distances it disagrees with.
 
         The scene to check is usually ``load_scene(content.scene.spec)``: the source
         and load options this file recorded.
 
         Raises:
-            DatasetError: naming both scenes, both hashes and both load specs.
+            DatasetError: naming both scenes, both hashes and both load specs; or the
+                first episode whose geodesic start-to-goal distances in ``scene`` differ
+                from the stored ones (which :func:`load_episode_file` checked against
+                the episode's difficulty bin).
         """
         if scene.content_hash == self.scene.content_hash:
+            for e in self.episodes:
+                d = np.array([scene.geodesic_distance(s, g)
+                              for s, g in zip(e.start_positions, e.agent_goals, strict=True)])
+                if not np.allclose(d, e.start_distances, rtol=0.0, atol=1e-3):
+                    raise DatasetError(
+                        f"{path}: episode {e.episode_id}: stored start distances "
+                        f"{_metres(e.start_distances)} differ from those recomputed in its "
+                        f"scene, {_metres(d)}; regenerate the episodes")
             return
         given = (scene.spec.describe() if scene.spec
                  else f"{scene.source or scene.name} with unknown options")
@@ -151,9 +171,33 @@ def load_episode_file(path: str | Path, scene: Scene | None = None) -> EpisodeFi
             episodes=tuple(Episode.from_json(e, ref, task) for e in doc["episodes"]))
     except (KeyError, TypeError) as e:
         raise DatasetError(f"{path}: malformed episode file: {e}") from e
+    for episode in content.episodes:
+        check_bin(episode, episode.start_distances, path, "stored")
     if scene is not None:
         content.check_scene(scene, path)
     return content
+
+
+def check_bin(episode: Episode, distances: np.ndarray, path: str | Path, how: str) -> None:
+    """Refuse an episode labelled with a difficulty its start distances do not have.
+
+    Raises:
+        DatasetError: naming the episode, its label, the distances and the bin.
+    """
+    try:
+        ok = bool(in_bin(distances, episode.difficulty).all())
+    except DatasetError as e:
+        raise DatasetError(f"{path}: episode {episode.episode_id}: {e}") from e
+    if not ok:
+        lo, hi = DIFFICULTY_BINS[episode.difficulty]
+        raise DatasetError(
+            f"{path}: episode {episode.episode_id} is labelled {episode.difficulty} "
+            f"([{lo:g}, {hi:g}) m) but its agents start {_metres(distances)} from their "
+            f"goals ({how}); the file was relabelled or is damaged: regenerate it")
+
+
+def _metres(d: np.ndarray) -> str:
+    return ", ".join(f"{v:.2f}" for v in np.asarray(d, dtype=float)) + " m"
 
 
 def write_index(root: str | Path) -> Path:

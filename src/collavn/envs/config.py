@@ -9,8 +9,9 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
+from collavn.configs import check_count, check_number
 from collavn.datasets.episode import DIFFICULTY_BINS, Episode
-from collavn.errors import CollavnError
+from collavn.errors import CollavnError, ConfigError
 from collavn.scenes.scene import Scene
 from collavn.tasks import TASKS, TaskName
 
@@ -67,20 +68,20 @@ class EnvConfig:
     privileged: bool = False
 
     def __post_init__(self) -> None:
-        if self.num_agents < 1:
-            raise CollavnError(f"num_agents must be ≥ 1, got {self.num_agents}")
-        if min(self.panorama_width, self.panorama_height, self.goal_size) < 1:
-            raise CollavnError("image sizes must be positive")
-        if self.max_steps < 1:
-            raise CollavnError(f"max_steps must be ≥ 1, got {self.max_steps}")
+        check_count("--agents", self.num_agents)
+        for name in ("panorama_width", "panorama_height", "goal_size"):
+            check_count(f"--{name.replace('_', '-')}", getattr(self, name))
+        check_count("--env.max-steps", self.max_steps)
+        check_count("--env.gt-map-size", self.gt_map_size)
+        check_count("--render-threads", self.render_threads)
+        check_number("--env.camera-height", self.camera_height)
+        check_number("--env.odometry-noise", self.odometry_noise, allow_minimum=True)
         if self.difficulty not in (*DIFFICULTY_BINS, "mixed"):
-            raise CollavnError(f"unknown difficulty {self.difficulty!r}; expected one of "
-                               f"{', '.join(DIFFICULTY_BINS)} or mixed")
+            raise ConfigError(f"unknown difficulty {self.difficulty!r}; expected one of "
+                              f"{', '.join(DIFFICULTY_BINS)} or mixed")
         if self.task not in TASKS:
-            raise CollavnError(f"unknown task {self.task!r}; expected one of "
-                               f"{', '.join(TASKS)}")
-        if self.render_threads < 1:
-            raise CollavnError(f"render_threads must be ≥ 1, got {self.render_threads}")
+            raise ConfigError(f"unknown task {self.task!r}; expected one of "
+                              f"{', '.join(TASKS)}")
 
 
 class EpisodeSource:

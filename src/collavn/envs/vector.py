@@ -19,10 +19,17 @@ Contract (Gymnasium vocabulary):
   action, before any reset.
   The finished episode's last observation is not returned; a learner that
   bootstraps truncated agents should use the value of the previous observation.
+- ``obs["episode_seed"] (E,)`` int64 seeds everything random *within* an episode:
+  derived from the env's seed and the episode's id (fixed episodes) or its start
+  count (sampled ones). The env draws odometry noise from it and sampling policies
+  (random, stochastic checkpoints) draw their actions from it, so an episode's
+  outcome depends on the seed and the episode only — never on ``num_envs`` or on
+  which env slot ran it.
 """
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -93,6 +100,10 @@ class VectorEnv:
         self.task = replace(get_task(config.task), max_steps=config.max_steps)
         self.params = params or AgentParams()
         self.rng = np.random.default_rng(seed)
+        self._base_seed = int(self.rng.integers(2**62)) if seed is None else seed
+        self._started = 0
+        self._episode_seeds = np.zeros(num_envs, np.int64)
+        self._noise = [np.random.default_rng(0) for _ in range(num_envs)]
         self.groups: list[SceneGroup] = []
         env_scene = np.arange(num_envs) % len(scenes)
         for s, scene in enumerate(scenes):
@@ -112,6 +123,7 @@ class VectorEnv:
         """Start a new episode in every env; returns ``(obs, info)``."""
         if seed is not None:
             self.rng = np.random.default_rng(seed)
+            self._base_seed, self._started = seed, 0
         for group in self.groups:
             self._start(group, np.arange(group.world.num_envs))
         return self._deliver(self._observe()), {"episode_done": np.zeros(self.num_envs, bool)}
@@ -166,6 +178,12 @@ class VectorEnv:
         world.reset_envs(list(local), episodes)
         for e, ep in zip(local, episodes, strict=True):
             group.episodes[e] = ep
+            key = ep.episode_id if group.source.episodes is not None else (
+                f"{ep.episode_id}#{self._started}")
+            self._started += 1
+            seed = episode_seed(self._base_seed, key)
+            self._episode_seeds[envs[e]] = seed
+            self._noise[envs[e]] = np.random.default_rng([seed, 0])
         goal_poses = np.concatenate([world.goal[local], world.goal_yaw[local][..., None]], -1)
         self._goal_images[envs[local]] = group.sensors.goal_images(goal_poses)
         self._last_pose[envs[local]] = world.poses()[local]
@@ -188,6 +206,7 @@ class VectorEnv:
             "pose": np.zeros((e, n, 3), np.float32),
             "active": np.zeros((e, n), bool),
             "step": np.zeros((e, n), np.int64),
+            "episode_seed": self._episode_seeds.copy(),
         }
         if cfg.depth or cfg.gt_map:
             obs["depth"] = np.zeros((e, n, cfg.panorama_height, cfg.panorama_width), np.float32)
@@ -208,7 +227,9 @@ class VectorEnv:
                 obs["gt_map"][envs] = sensors.gt_maps(poses, views.depth)
             delta = relative_pose(self._last_pose[envs], poses)
             if cfg.odometry_noise > 0:
-                delta = delta + self.rng.normal(0.0, cfg.odometry_noise, delta.shape)
+                delta = delta + np.stack([self._noise[i].normal(0.0, cfg.odometry_noise,
+                                                                delta.shape[1:])
+                                          for i in envs])
             obs["pose_delta"][envs] = delta
             obs["pose"][envs] = world.relative_to_start()
             obs["active"][envs] = world.running
@@ -218,6 +239,12 @@ class VectorEnv:
                 obs["scene_index"][envs] = g
             self._last_pose[envs] = poses
         return obs
+
+
+def episode_seed(seed: int, key: str) -> int:
+    """A seed in ``[0, 2^63)`` for the episode ``key`` of an env seeded with ``seed``."""
+    digest = hashlib.sha256(f"{seed}:{key}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1
 
 
 def episode_records(group: SceneGroup, local_envs: np.ndarray) -> list[AgentRecord]:

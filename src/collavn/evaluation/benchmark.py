@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, cast
 
+from collavn.configs import check_count
 from collavn.datasets.episode import Difficulty
 from collavn.datasets.storage import Dataset
 from collavn.envs.config import EnvConfig
@@ -47,9 +48,10 @@ class EvalConfig:
     difficulty: Difficulty | None = None
     """Only the episodes of this difficulty bin."""
     num_envs: int = 4
-    """Environments stepped together."""
+    """Environments stepped together (a speed setting: results do not depend on it)."""
     seed: int = 0
-    """Seeds the random policy, sampled checkpoint actions and odometry noise."""
+    """Seeds the random policy, sampled checkpoint actions and odometry noise, per
+    episode (with the episode's id)."""
     device: str = "cpu"
     """Torch device for checkpoint policies."""
     stochastic: bool = False
@@ -61,6 +63,11 @@ class EvalConfig:
     """Show a progress bar."""
     env: EnvConfig = field(default_factory=EnvConfig)
     """Sensors (task and agents come from the dataset; checkpoints bring their sizes)."""
+
+    def __post_init__(self) -> None:
+        check_count("--num-envs", self.num_envs)
+        check_count("--seed", self.seed, 0)
+        check_count("--keep-trajectories", self.keep_trajectories, 0)
 
 
 def run_evaluation(cfg: EvalConfig, dataset: Dataset) -> EvaluationResult:

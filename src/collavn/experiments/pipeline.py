@@ -207,8 +207,10 @@ def _train(args: list[str]) -> dict[str, Any]:
     from collavn.training.trainer import CHECKPOINT, train
 
     config = parse_train_args(args)
-    resume = (Path(config.run.out) / CHECKPOINT).is_file()  # interrupted before: continue
-    result = train(config.with_run(resume=resume))
+    out = Path(config.run.out)
+    resume = (out / CHECKPOINT).is_file()  # interrupted before: continue
+    started = out.is_dir() and any(out.iterdir())  # killed before its first checkpoint
+    result = train(config.with_run(resume=resume, overwrite=started and not resume))
     return {"iterations": result.iterations, "agent_steps": result.agent_steps,
             "checkpoint": str(result.checkpoint), "resumed": resume,
             "success_rate": result.last.get("episode/success_rate", float("nan"))}

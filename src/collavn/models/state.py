@@ -7,7 +7,7 @@ the same model runs with any number of agents.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 
 import torch
@@ -101,3 +101,9 @@ class AgentState:
     def select_envs(self, index: Tensor | slice) -> AgentState:
         """The state of a subset of environments (for minibatches of sequences)."""
         return self.apply(lambda t: t[index])
+
+    @classmethod
+    def cat(cls, states: Sequence[AgentState]) -> AgentState:
+        """The states of several env batches joined along the env axis."""
+        return cls(**{f.name: torch.cat([getattr(s, f.name) for s in states])
+                      for f in fields(cls)})

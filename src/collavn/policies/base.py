@@ -6,7 +6,10 @@ A policy acts for a batch of agents::
     actions, state = policy.act(obs, state)      # actions: (E, N, 2) in [-1, 1]
 
 ``obs`` is the vector env's observation dict (arrays ``(E, N, ...)``); an agent whose
-``obs["step"]`` is 0 has just started an episode (reset any memory for it).
+``obs["step"]`` is 0 has just started an episode (reset any memory for it). A policy
+that samples draws from :class:`EpisodeRandom`: one generator per episode, seeded from
+the policy's seed and ``obs["episode_seed"]``, so its actions in an episode do not
+depend on how many envs run beside it.
 """
 
 from __future__ import annotations
@@ -63,11 +66,44 @@ class Policy(Protocol):
         ...
 
 
-class RandomPolicy:
-    """Uniform actions in ``[-1, 1]²``, from its own seeded generator."""
+class EpisodeRandom:
+    """One random generator per env, restarted at every episode start.
+
+    The generator of an episode is seeded with ``(seed, obs["episode_seed"][e])``.
+    """
 
     def __init__(self, seed: int = 0) -> None:
-        self.rng = np.random.default_rng(seed)
+        self.seed = seed
+        self._rngs: list[np.random.Generator] = []
+        self._seeds = np.zeros(0, np.int64)
+
+    def generators(self, obs: dict[str, np.ndarray]) -> list[np.random.Generator]:
+        """The ``E`` generators for this step (fresh ones where an episode starts)."""
+        seeds = np.asarray(obs["episode_seed"], dtype=np.int64)
+        starting = (np.asarray(obs["step"]) == 0).all(axis=1)
+        if len(self._rngs) != len(seeds):
+            self._rngs = [np.random.default_rng(0) for _ in seeds]
+            self._seeds = np.full(len(seeds), -1, np.int64)
+        for e in np.flatnonzero(starting | (seeds != self._seeds)):
+            self._rngs[e] = np.random.default_rng([self.seed, int(seeds[e])])
+        self._seeds = seeds.copy()
+        return self._rngs
+
+    def uniform(self, obs: dict[str, np.ndarray], low: float, high: float,
+                shape: tuple[int, ...]) -> np.ndarray:
+        """``(E, *shape)`` uniform draws, env ``e`` from its episode's generator."""
+        return np.stack([g.uniform(low, high, shape) for g in self.generators(obs)])
+
+    def normal(self, obs: dict[str, np.ndarray], shape: tuple[int, ...]) -> np.ndarray:
+        """``(E, *shape)`` standard normal draws, env ``e`` from its episode's generator."""
+        return np.stack([g.standard_normal(shape) for g in self.generators(obs)])
+
+
+class RandomPolicy:
+    """Uniform actions in ``[-1, 1]²``, drawn per episode (:class:`EpisodeRandom`)."""
+
+    def __init__(self, seed: int = 0) -> None:
+        self.random = EpisodeRandom(seed)
 
     def initial_state(self, num_envs: int, num_agents: int) -> None:
         """Memoryless."""
@@ -75,8 +111,8 @@ class RandomPolicy:
 
     def act(self, obs: dict[str, np.ndarray], state: None) -> tuple[np.ndarray, None]:
         """Uniform random actions."""
-        e, n = obs["active"].shape
-        return self.rng.uniform(-1.0, 1.0, (e, n, 2)), None
+        n = obs["active"].shape[1]
+        return self.random.uniform(obs, -1.0, 1.0, (n, 2)), None
 
     def communication(self) -> CommStats:
         """Random agents never talk."""

@@ -1,18 +1,24 @@
 """Checkpoint files, and a trained model behind the policy interface.
 
-A checkpoint is one ``torch.save`` file holding the resolved training config (as a
-dict: ``{"method", "preset", "env", "model", "ppo", "mapping", "imitation", "run"}``),
-the update counter, the model and optimizer states. It is written with
+A checkpoint file is one header line, ``collavn-checkpoint 3 sha256=<64 hex>``, then a
+``torch.save`` payload holding the resolved training config (as a dict: ``{"method",
+"preset", "env", "model", "ppo", "mapping", "imitation", "run"}``), the update counter,
+the model and optimizer states. The checksum covers the payload and is verified on
+every load: one flipped bit is refused as damage, never loaded. The file is written with
 :func:`collavn.files.atomic_write`, so a kill at any moment leaves either the old or the
-new checkpoint, never a torn one.
+new checkpoint, never a torn one (a temporary file left by a hard kill is removed by
+the next save).
 
 Format history: 1 — flat config, agent scores as a softmax across agents (no teammate
 message could pass η = ½ at N = 2); 2 — the config tree and the paper's per-pair
-scores. Format-1 checkpoints are refused with that reason.
+scores, a bare ``torch.save`` file; 3 — the same payload behind the checksum header.
+Format-1 checkpoints are refused with that reason; format-2 files (no checksum) still
+load.
 """
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 from typing import Any
 
@@ -21,16 +27,20 @@ import torch
 
 from collavn.configs import from_dict
 from collavn.errors import CheckpointError, ConfigError
-from collavn.files import atomic_write
+from collavn.files import atomic_write, sha256_hex
 from collavn.models.communication import Message, communication_counts
 from collavn.models.config import ModelConfig
 from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
-from collavn.policies.base import CommStats
+from collavn.policies.base import CommStats, EpisodeRandom
 
 #: Bumped when the checkpoint layout or the meaning of its weights changes.
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
+#: Formats :func:`load_checkpoint` reads (2: written before checksums, loaded unchecked).
+READABLE_FORMATS = (2, 3)
+#: First word of a checkpoint file's header line.
+MAGIC = b"collavn-checkpoint"
 
 #: Why older formats are refused.
 _OLD_FORMATS = {1: "written before the configuration tree and the per-pair communication "
@@ -39,29 +49,80 @@ _OLD_FORMATS = {1: "written before the configuration tree and the per-pair commu
 
 
 def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
-    """Write ``payload`` (plus the format version) to ``path`` atomically."""
-    data = {"format": FORMAT_VERSION, **payload}
-    return atomic_write(path, lambda f: torch.save(data, f))
+    """Write ``payload`` (plus the format version) to ``path`` atomically, checksummed.
+
+    Raises:
+        CheckpointError: the file cannot be written (disk full, no permission); the
+            previous checkpoint at ``path``, if any, is left as it was.
+    """
+    buf = io.BytesIO()
+    torch.save({"format": FORMAT_VERSION, **payload}, buf)
+    body = buf.getvalue()
+    header = MAGIC + f" {FORMAT_VERSION} sha256={sha256_hex(body)}\n".encode()
+    try:
+        return atomic_write(path, header + body, clean_stale=True)
+    except OSError as e:
+        raise CheckpointError(f"cannot write checkpoint {path}: {e.strerror or e}; the "
+                              f"previous checkpoint there (if any) is unchanged") from e
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
                     ) -> dict[str, Any]:
-    """Read a checkpoint; raises :class:`CheckpointError` if it is not a current one of ours."""
+    """Read and verify a checkpoint.
+
+    Raises:
+        CheckpointError: missing, unreadable, damaged (checksum mismatch), an old or
+            foreign format, or weights holding NaN or inf.
+    """
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"no checkpoint at {path}")
     try:
-        payload = torch.load(path, map_location=map_location, weights_only=False)
+        raw = path.read_bytes()
+    except OSError as e:
+        raise CheckpointError(f"cannot read checkpoint {path}: {e.strerror or e}") from e
+    body, checked = _verified_body(raw, path)
+    try:
+        payload = torch.load(io.BytesIO(body), map_location=map_location, weights_only=False)
     except Exception as e:  # torch raises many kinds on a corrupt file
         raise CheckpointError(f"cannot read checkpoint {path}: {e}") from e
     version = payload.get("format") if isinstance(payload, dict) else None
     if version in _OLD_FORMATS:
         raise CheckpointError(f"checkpoint {path} has format {version}: "
                               f"{_OLD_FORMATS[version]}")
-    if version != FORMAT_VERSION:
+    if version not in READABLE_FORMATS or (version == FORMAT_VERSION) != checked:
         raise CheckpointError(f"{path} is not a collavn training checkpoint "
                               f"(format {FORMAT_VERSION})")
+    _check_finite(payload, path)
     return payload
+
+
+def _verified_body(raw: bytes, path: Path) -> tuple[bytes, bool]:
+    """The payload bytes of a file and whether a checksum verified them (format 3)."""
+    if not raw.startswith(MAGIC + b" "):
+        return raw, False
+    end = raw.find(b"\n")
+    words = raw[:end].split() if end > 0 else []
+    body = raw[end + 1:]
+    if len(words) != 3 or not words[2].startswith(b"sha256="):
+        raise CheckpointError(f"checkpoint {path} is damaged: its header is unreadable")
+    if sha256_hex(body) != words[2][len(b"sha256="):].decode(errors="replace"):
+        raise CheckpointError(f"checkpoint {path} is damaged: its content does not match "
+                              f"its sha256 checksum (bit rot or a torn copy); restore it "
+                              f"from a copy or train again")
+    return body, True
+
+
+def _check_finite(payload: dict[str, Any], path: Path) -> None:
+    """Refuse model weights holding NaN or inf (a diverged run)."""
+    model = payload.get("model")
+    if not isinstance(model, dict):
+        return
+    for name, value in model.items():
+        if (isinstance(value, torch.Tensor) and value.is_floating_point()
+                and not bool(torch.isfinite(value).all())):
+            raise CheckpointError(f"checkpoint {path}: weight {name} holds NaN or inf "
+                                  f"(the run diverged?); use an earlier checkpoint")
 
 
 def tally(message: Message, active: torch.Tensor) -> CommStats:
@@ -84,15 +145,19 @@ class CheckpointPolicy:
 
     Numpy observations go to torch on the model's device; ``episode_start`` comes from
     ``obs["step"] == 0``; actions are the policy mean clipped to [-1, 1], or with
-    ``stochastic`` samples of the Gaussian (from a generator seeded by ``seed``). Works
-    for any number of agents (Ad-hoCoop; ``il`` copies).
+    ``stochastic`` samples of the Gaussian (seeded per episode by ``seed`` and
+    ``obs["episode_seed"]``). Works for any number of agents (Ad-hoCoop; ``il`` copies).
+
+    The model runs one env at a time: agents only interact within their env, and a
+    batch of another size rounds floating point differently, so running envs
+    together would let ``num_envs`` change the results.
     """
 
     def __init__(self, model: ActorCritic, stochastic: bool = False, seed: int = 0) -> None:
         self.model = model.eval()
         self.keys = policy_keys(model.cfg.map.use_depth)
         self.stochastic = stochastic
-        self.seed = seed
+        self.random = EpisodeRandom(seed)
         self.comm = CommStats()
 
     def initial_state(self, num_envs: int, num_agents: int) -> AgentState:
@@ -101,21 +166,31 @@ class CheckpointPolicy:
 
     def act(self, obs: dict[str, np.ndarray], state: AgentState
             ) -> tuple[np.ndarray, AgentState]:
-        """Actions ``(E, N, 2)`` (the mean, or a sample if ``stochastic``), next state."""
+        """Actions ``(E, N, 2)`` (the mean, or a sample if ``stochastic``), next state.
+
+        Samples are ``mean + std · ε`` with ``ε`` drawn per episode
+        (:class:`~collavn.policies.base.EpisodeRandom`); torch's random state is not
+        used.
+        """
         device = self.model.device
-        inputs = obs_to_torch(obs, self.keys, device), state, episode_start(obs, device)
-        if not self.stochastic:
-            out = self.model.act(*inputs, deterministic=True)
-        else:
-            # Sampling draws from torch's global generator: reseed it per call
-            # (reproducible per seed) inside fork_rng, so the caller's random state is
-            # left as it was.
-            with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
-                torch.manual_seed(self.seed)
-                self.seed += 1
-                out = self.model.act(*inputs)
-        self.comm.add(tally(out.message, inputs[0]["active"]))
-        return out.action.cpu().numpy().astype(np.float64), out.state
+        obs_t, start = obs_to_torch(obs, self.keys, device), episode_start(obs, device)
+        means, scales, states = [], [], []
+        with torch.no_grad():
+            for e in range(start.shape[0]):  # one env at a time: see the class docstring
+                one = slice(e, e + 1)
+                step = self.model({k: v[one] for k, v in obs_t.items()},
+                                  state.select_envs(one), start[one])
+                means.append(step.dist.mean)
+                scales.append(step.dist.base_dist.scale)
+                states.append(step.state)
+                self.comm.add(tally(step.message, obs_t["active"][one]))
+        raw = torch.cat(means)
+        if self.stochastic:
+            n = obs["active"].shape[1]
+            eps = torch.as_tensor(self.random.normal(obs, (n, raw.shape[-1])),
+                                  dtype=raw.dtype, device=device)
+            raw = raw + torch.cat(scales) * eps
+        return raw.clamp(-1.0, 1.0).cpu().numpy().astype(np.float64), AgentState.cat(states)
 
     def communication(self) -> CommStats:
         """Communication of every call to :meth:`act` so far."""
@@ -135,8 +210,9 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
     try:
         model.load_state_dict(payload["model"])
     except (RuntimeError, KeyError) as e:
+        detail = "; ".join(line.strip() for line in str(e).splitlines()[1:3])
         raise CheckpointError(f"checkpoint {path}: its weights do not fit its model "
-                              f"config: {e}") from e
+                              f"config ({detail or e})") from e
     _, h, w = model_cfg.panorama_shape
     overrides: dict[str, Any] = {"panorama_width": w, "panorama_height": h,
                                  "goal_size": model_cfg.goal_shape[-1]}

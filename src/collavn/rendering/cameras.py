@@ -40,6 +40,10 @@ from collavn.errors import RenderError
 CameraKind = Literal["panorama", "pinhole"]
 
 
+#: Largest image a camera may have, pixels (8192×2048: ~2 GB of ray buffers per view).
+MAX_PIXELS = 8192 * 2048
+
+
 @dataclass(frozen=True)
 class CameraSpec:
     """Geometry of one camera model.
@@ -66,6 +70,10 @@ class CameraSpec:
             raise RenderError(f"camera size must be integers, got {self.width}×{self.height}")
         if self.width < 1 or self.height < 1:
             raise RenderError(f"camera size must be positive, got {self.width}×{self.height}")
+        if self.width * self.height > MAX_PIXELS:
+            raise RenderError(f"a {self.width}×{self.height} image has "
+                              f"{self.width * self.height:,} pixels, more than the limit of "
+                              f"{MAX_PIXELS:,} (e.g. 8192×2048)")
         if self.kind == "panorama" and self.width % 4:
             raise RenderError(f"panorama width must be a multiple of 4 (so that 90° is a whole "
                               f"number of columns), got {self.width}")

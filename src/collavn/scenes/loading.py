@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
-from collavn.errors import SceneError
+from collavn.errors import SceneError, SceneWarning
 from collavn.scenes.limits import SizeLimits
 from collavn.scenes.navigation import NavConfig
 from collavn.scenes.scene import SCENE_FORMAT_VERSION, Scene
@@ -69,8 +70,10 @@ def load_scene(scene: str | Path | SceneSpec, *, cache: bool = True,
     if cache and cached.is_file():
         try:
             return _with_spec(Scene.load(cached), spec)
-        except SceneError:
-            cached.unlink(missing_ok=True)  # stale or damaged cache: rebuild below
+        except SceneError as e:  # damaged (or unreadable) cache file: rebuild it
+            warnings.warn(f"rebuilding the cached scene {spec.source}: {e}", SceneWarning,
+                          stacklevel=2)
+            cached.unlink(missing_ok=True)
     built = _with_spec(_build(spec, nav_config, limits), spec)
     if cache:
         try:

@@ -10,6 +10,8 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -23,8 +25,10 @@ from collavn.scenes.limits import SizeLimits
 from collavn.scenes.navigation import GeodesicField, NavConfig, NavGrid
 from collavn.scenes.spec import SceneSpec
 
-#: Bumped whenever the on-disk layout of a saved scene changes.
-SCENE_FORMAT_VERSION = 1
+#: Bumped whenever the on-disk layout of a saved scene changes (2: a content checksum).
+SCENE_FORMAT_VERSION = 2
+#: Saved-scene formats :meth:`Scene.load` reads (1: without a checksum, read unchecked).
+READABLE_SCENE_FORMATS = (1, 2)
 
 
 @dataclass(frozen=True, eq=False)
@@ -145,7 +149,7 @@ class Scene:
 
     # --------------------------------------------------------------- persistence
     def save(self, path: str | Path) -> None:
-        """Write the scene to an ``.npz`` file (atomically)."""
+        """Write the scene to an ``.npz`` file (atomically, with a content checksum)."""
         path = Path(path)
         buf = io.BytesIO()
         arrays: dict[str, Any] = dict(
@@ -157,22 +161,36 @@ class Scene:
             textures=self.textures, floor_z=np.float64(self.floor_z),
             **self.nav.to_arrays(),
         )
+        arrays["checksum"] = np.array(_checksum(arrays))
         np.savez_compressed(buf, **arrays)
         atomic_write(path, buf.getvalue())
 
     @classmethod
     def load(cls, path: str | Path) -> Scene:
-        """Read a scene written by :meth:`save`."""
+        """Read a scene written by :meth:`save`.
+
+        Raises:
+            SceneError: unreadable, another format, or damaged (the checksum of its
+                arrays does not match).
+        """
         path = Path(path)
         try:
             with np.load(path, allow_pickle=False) as z:
-                if int(z["version"]) != SCENE_FORMAT_VERSION:
-                    raise SceneError(f"{path}: scene format {int(z['version'])}, "
-                                     f"expected {SCENE_FORMAT_VERSION}")
+                version = int(z["version"])
+                if version not in READABLE_SCENE_FORMATS:
+                    raise SceneError(f"{path}: scene format {version}, expected "
+                                     f"{SCENE_FORMAT_VERSION}")
                 arrays = {k: z[k] for k in z.files}
+            stored = str(arrays.pop("checksum", ""))
+            if version >= 2 and stored != _checksum(arrays):
+                raise SceneError(f"saved scene {path} is damaged: its content does not "
+                                 f"match its checksum")
             spec_text = str(arrays.get("spec", ""))  # absent in scenes saved before specs
             spec = SceneSpec.from_dict(json.loads(spec_text)) if spec_text else None
-        except (OSError, ValueError, KeyError, EOFError) as e:
+        except SceneError:
+            raise
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile,
+                zlib.error) as e:
             raise SceneError(f"cannot read saved scene {path}: {e}") from e
         return cls(
             name=str(arrays["name"]), source=str(arrays["source"]), spec=spec,
@@ -181,6 +199,16 @@ class Scene:
             face_tint=arrays["face_tint"], textures=arrays["textures"],
             floor_z=float(arrays["floor_z"]), nav=NavGrid.from_arrays(arrays),
         )
+
+
+def _checksum(arrays: dict[str, Any]) -> str:
+    """SHA-256 over every array's name, dtype, shape and bytes, in name order."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(repr((name, a.dtype.str, a.shape)).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
 
 
 def build_scene(name: str, vertices: np.ndarray, faces: np.ndarray, face_uvs: np.ndarray,

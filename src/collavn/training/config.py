@@ -30,6 +30,7 @@ from typing import Annotated, Any, Literal
 import tyro
 
 from collavn import configs
+from collavn.configs import check_count, check_number
 from collavn.envs.config import EnvConfig
 from collavn.errors import ConfigError
 from collavn.models.config import CommVariant, ModelConfig
@@ -63,7 +64,8 @@ METHODS: dict[str, MethodSpec] = {
 }
 
 #: Fields that steer a run without changing its results (allowed to differ on resume).
-RUN_CONTROL_FIELDS = ("run.out", "run.resume", "run.total_steps", "run.time_budget_minutes",
+RUN_CONTROL_FIELDS = ("run.out", "run.resume", "run.overwrite",
+                      "run.total_steps", "run.time_budget_minutes",
                       "run.progress", "run.device", "run.log_interval", "run.torch_threads",
                       "env.render_threads")
 
@@ -100,6 +102,22 @@ class PPOConfig:
     supervised training) — for fine-tuning a policy from ``--init-from``, whose critic
     is untrained, without letting its noise move the policy."""
 
+    def __post_init__(self) -> None:
+        for name in ("rollout_steps", "num_minibatches", "update_epochs"):
+            check_count(f"--ppo.{name.replace('_', '-')}", getattr(self, name))
+        check_count("--ppo.critic-warmup", self.critic_warmup, 0)
+        for name in ("lr", "clip_coef", "max_grad_norm"):
+            check_number(f"--ppo.{name.replace('_', '-')}", getattr(self, name))
+        for name in ("ent_coef", "vf_coef"):
+            check_number(f"--ppo.{name.replace('_', '-')}", getattr(self, name),
+                         allow_minimum=True)
+        check_number("--ppo.gamma", self.gamma)
+        if self.gamma > 1:
+            raise ConfigError(f"--ppo.gamma must be in (0, 1], got {self.gamma}")
+        check_number("--ppo.gae-lambda", self.gae_lambda, allow_minimum=True)
+        if self.gae_lambda > 1:
+            raise ConfigError(f"--ppo.gae-lambda must be in [0, 1], got {self.gae_lambda}")
+
 
 @dataclass(frozen=True)
 class MapTrainConfig:
@@ -117,6 +135,12 @@ class MapTrainConfig:
     """Adam learning rate of the map predictor."""
     enabled: bool = True
     """Train the map module at all (off: the map input stays at its random init)."""
+
+    def __post_init__(self) -> None:
+        for name in ("fifo_size", "batch_size", "every"):
+            check_count(f"--mapping.{name.replace('_', '-')}", getattr(self, name))
+        check_count("--mapping.updates", self.updates, 0)
+        check_number("--mapping.lr", self.lr)
 
 
 @dataclass(frozen=True)
@@ -139,6 +163,17 @@ class ImitationConfig:
     lr: float = 3e-4
     """Adam learning rate."""
 
+    def __post_init__(self) -> None:
+        for name in ("epochs", "buffer_rollouts", "num_minibatches"):
+            check_count(f"--imitation.{name.replace('_', '-')}", getattr(self, name))
+        check_number("--imitation.lr", self.lr)
+        for name in ("beta_decay", "beta_min"):
+            value = getattr(self, name)
+            check_number(f"--imitation.{name.replace('_', '-')}", value, allow_minimum=True)
+            if value > 1:
+                raise ConfigError(f"--imitation.{name.replace('_', '-')} must be in [0, 1], "
+                                  f"got {value}")
+
 
 @dataclass(frozen=True)
 class RunConfig:
@@ -147,7 +182,12 @@ class RunConfig:
     out: str = "runs/train"
     """Run directory: ``config.json``, ``checkpoint.pt``, TensorBoard events."""
     resume: bool = False
-    """Continue from ``OUT/checkpoint.pt`` (refused if it was made by another config)."""
+    """Continue from ``OUT/checkpoint.pt`` (refused if it is missing or was made by
+    another config)."""
+    overwrite: bool = False
+    """Start over in a non-empty ``OUT``: the old directory is moved aside to
+    ``OUT.old-<time>`` (nothing is deleted). Without it (or ``--resume``) a non-empty
+    ``OUT`` is refused."""
     seed: int = 0
     """Base seed; process ``r`` uses ``seed + 1000·r`` for its envs and sampling."""
     num_envs: int = 25
@@ -160,7 +200,8 @@ class RunConfig:
     total_steps: int = 10_000_000
     """Stop after this many agent-steps (summed over processes)."""
     time_budget_minutes: float = 0.0
-    """Stop (with a checkpoint) after this wall-clock time; 0 = no limit."""
+    """Stop (with a checkpoint) after this wall-clock time; 0 = no limit (negative is
+    refused)."""
     checkpoint_interval: int = 10
     """Updates between checkpoints; checkpoints are sync points (envs reset, FIFO cleared)."""
     log_interval: int = 1
@@ -176,8 +217,14 @@ class RunConfig:
     fine-tune it with PPO); its model config must match. Optimizers start fresh."""
 
     def __post_init__(self) -> None:
-        if self.num_envs < 1 or self.checkpoint_interval < 1 or self.log_interval < 1:
-            raise ConfigError("num_envs, checkpoint_interval and log_interval must be ≥ 1")
+        for name in ("num_envs", "total_steps", "checkpoint_interval", "log_interval"):
+            check_count(f"--{name.replace('_', '-')}", getattr(self, name))
+        check_count("--seed", self.seed, 0)
+        check_count("--torch-threads", self.torch_threads, 0)
+        check_number("--time-budget-minutes", self.time_budget_minutes, allow_minimum=True)
+        if self.resume and self.overwrite:
+            raise ConfigError("--resume and --overwrite exclude each other: continue the "
+                              "run or start it over")
 
 
 @dataclass(frozen=True)
@@ -205,10 +252,6 @@ class TrainConfig:
         if self.method not in METHODS:
             raise ConfigError(f"unknown method {self.method!r}; expected one of "
                               f"{', '.join(METHODS)}")
-        if self.ppo.rollout_steps < 1:
-            raise ConfigError(f"rollout_steps must be ≥ 1, got {self.ppo.rollout_steps}")
-        if self.ppo.critic_warmup < 0:
-            raise ConfigError(f"critic_warmup must be ≥ 0, got {self.ppo.critic_warmup}")
         # Derived, never stated twice: the model's inputs follow the env, its
         # communication the method.
         model = replace(self.model,

@@ -9,7 +9,14 @@ rollouts.
 Reproducibility: every ``checkpoint_interval`` updates is a *sync point* — all seeds
 are re-derived from ``(seed, rank, update)``, every env starts a new episode, the
 recurrent state and the map FIFO are cleared. A checkpoint is written at sync points,
-so a run resumed from one continues exactly like the uninterrupted run.
+so a run resumed from one continues exactly like the uninterrupted run. That is why a
+SIGINT or SIGTERM (:mod:`collavn.training.interrupt`) stops at the next sync point, not
+mid-interval; a run stopped by its time budget stops where it is, and a resume from
+that checkpoint starts a sync point there (statistically the same run, not bit-equal).
+
+Run directory: :func:`collavn.files.prepare_output_dir` refuses a non-empty ``out``
+unless ``resume`` (which then requires ``out/checkpoint.pt``) or ``overwrite`` (the old
+directory is moved aside).
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ from torch import nn
 from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv
 from collavn.errors import CheckpointError
+from collavn.files import prepare_output_dir
 from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
 from collavn.policies import OraclePolicy
@@ -45,6 +53,7 @@ from collavn.training.imitation import (
     imitation_update,
     mix_actions,
 )
+from collavn.training.interrupt import StopRequest
 from collavn.training.map_training import MapTrainer, policy_parameters
 from collavn.training.ppo import ppo_update
 from collavn.training.rollout import Rollout, compute_gae
@@ -281,10 +290,13 @@ def restore(run: Run, path: Path) -> None:
     run.iteration, run.agent_steps = int(payload["iteration"]), int(payload["agent_steps"])
 
 
-def out_of_budget(run: Run) -> bool:
-    """Total steps reached, or the wall-clock budget spent (rank 0 decides for all)."""
+def out_of_budget(run: Run, stopping: bool = False) -> bool:
+    """Total steps reached, budget spent, or ``stopping``; rank 0 decides for all.
+
+    ``stopping``: a signal arrived and the run is at a sync point.
+    """
     cfg = run.cfg
-    done = run.agent_steps >= cfg.run.total_steps
+    done = stopping or run.agent_steps >= cfg.run.total_steps
     if cfg.run.time_budget_minutes > 0:
         done |= time.perf_counter() - run.started >= 60.0 * cfg.run.time_budget_minutes
     flag = distributed.all_reduce_mean([float(done) if run.info.is_main else 0.0],
@@ -301,46 +313,68 @@ class TrainResult:
         agent_steps: Agent-steps collected in total (all processes).
         last: Scalars of the last update.
         checkpoint: Path of the final checkpoint (rank 0; ``None`` elsewhere).
+        signal: The signal that stopped the run early (``signal.SIGINT``, …), or ``None``.
+        moved: Where ``overwrite`` moved the old run directory, if it did.
     """
 
     iterations: int
     agent_steps: int
     last: dict[str, float]
     checkpoint: Path | None
+    signal: int | None = None
+    moved: Path | None = None
 
 
 def train(cfg: TrainConfig) -> TrainResult:
-    """Train ``cfg.method`` until ``total_steps`` or the time budget; see the module doc."""
+    """Train ``cfg.method`` until ``total_steps``, the time budget or a signal.
+
+    See the module doc (sync points, run directory) and
+    :mod:`collavn.training.interrupt` (SIGINT / SIGTERM).
+
+    Raises:
+        ConfigError: ``out`` is not usable (see :func:`collavn.files.prepare_output_dir`).
+        CheckpointError: ``resume`` without a checkpoint, or with another config's.
+    """
+    out = Path(cfg.run.out)
+    if cfg.run.resume and not (out / CHECKPOINT).is_file():
+        raise CheckpointError(f"--resume: no checkpoint at {out / CHECKPOINT}; check --out, "
+                              f"or start a new run without --resume")
     info, device = distributed.setup(cfg.run.device)
     if cfg.run.torch_threads > 0:
         torch.set_num_threads(cfg.run.torch_threads)
-    out = Path(cfg.run.out)
+    interval = cfg.run.checkpoint_interval
     try:
-        run = build_run(cfg, info, device)
-        if cfg.run.resume and (out / CHECKPOINT).exists():
-            restore(run, out / CHECKPOINT)
-        logger = Logger(run, out) if info.is_main else None
-        last: dict[str, float] = {}
-        first = True
-        while not out_of_budget(run):
-            if first or run.iteration % cfg.run.checkpoint_interval == 0:
-                sync_point(run)
-                first = False
-            tick = time.perf_counter()
-            rollout, collected = collect_rollout(run)
-            losses = learn(run, rollout)
-            run.iteration += 1
-            run.agent_steps += run.steps_per_update
-            last = summary(run, collected, losses, time.perf_counter() - tick)
+        moved = prepare_output_dir(out, resume=cfg.run.resume, overwrite=cfg.run.overwrite,
+                                   create=info.is_main)
+        with StopRequest(out / CHECKPOINT, interval) as stop:
+            run = build_run(cfg, info, device)
+            if cfg.run.resume:
+                restore(run, out / CHECKPOINT)
+            logger = Logger(run, out) if info.is_main else None
+            last: dict[str, float] = {}
+            first = True
+            while True:
+                at_sync = first or run.iteration % interval == 0
+                if out_of_budget(run, stopping=stop.requested and at_sync):
+                    break
+                if at_sync:
+                    sync_point(run)
+                    first = False
+                tick = time.perf_counter()
+                rollout, collected = collect_rollout(run)
+                losses = learn(run, rollout)
+                run.iteration += 1
+                run.agent_steps += run.steps_per_update
+                last = summary(run, collected, losses, time.perf_counter() - tick)
+                if logger is not None:
+                    logger.log(run, last)
+                    if run.iteration % interval == 0:
+                        save_checkpoint(out / CHECKPOINT, checkpoint_payload(run))
+            path = None
             if logger is not None:
-                logger.log(run, last)
-                if run.iteration % cfg.run.checkpoint_interval == 0:
-                    save_checkpoint(out / CHECKPOINT, checkpoint_payload(run))
-        path = None
-        if logger is not None:
-            path = save_checkpoint(out / CHECKPOINT, checkpoint_payload(run))
-            logger.close()
-        return TrainResult(run.iteration, run.agent_steps, last, path)
+                path = save_checkpoint(out / CHECKPOINT, checkpoint_payload(run))
+                logger.close()
+        return TrainResult(run.iteration, run.agent_steps, last, path, stop.signum, moved)
     finally:
         distributed.cleanup()
 
