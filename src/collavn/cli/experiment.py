@@ -9,9 +9,11 @@ from collavn.experiments import ExperimentConfig, run_experiment, write_report
 
 @dataclass(frozen=True)
 class Experiment(ExperimentConfig):
-    """Datasets, training of il / no-com / no-mem / ours, evaluation of them and of random,
-    explorer and oracle, comparisons, Ad-hoCoop, and ``OUT/report.md``; run again with
-    the same arguments to resume.
+    """The paper's table end to end: datasets, training, evaluation, report.
+
+    Trains il / no-com / no-mem / ours within the budget, evaluates them and random,
+    explorer and oracle on the test split, compares them, runs Ad-hoCoop, and writes
+    ``OUT/report.md``. Run again with the same arguments to resume.
     """
 
     def run(self) -> int:
