@@ -141,7 +141,7 @@ def test_evaluation_reports_communication_per_method(door_scene, tmp_path, capsy
     scene_file = tmp_path / "door.npz"
     door_scene.save(scene_file)
     data = tmp_path / "data"
-    assert main(["dataset", "generate", "--split", "val", "--episodes", "4", "--scenes",
+    assert main(["dataset", "generate", "--split", "val", "--episodes", "2", "--scenes",
                  str(scene_file), "--out", str(data), "--quiet"]) == 0
     small = ["--panorama-width", "32", "--panorama-height", "8", "--goal-size", "8"]
     rates = {}

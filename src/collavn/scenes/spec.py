@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-from collavn.errors import SceneError
+from collavn.errors import ConfigError, SceneError
 
 UpAxis = Literal["auto", "x", "y", "z"]
 #: Accepted values of :attr:`SceneSpec.up_axis`.
@@ -191,7 +191,10 @@ class LoadOptions:
     """Multi-storey meshes: use the floor nearest this height in metres."""
 
     def __post_init__(self) -> None:
-        SceneSpec("x.obj", self.up_axis, self.scale, self.floor_height)  # validates
+        try:
+            SceneSpec("x.obj", self.up_axis, self.scale, self.floor_height)  # validates
+        except SceneError as e:  # a bad flag: reported as a config error, not a tyro box
+            raise ConfigError(str(e)) from None
 
     def spec(self, source: str | Path | SceneSpec) -> SceneSpec:
         """``source`` with these options; procedural and saved scenes take none.
