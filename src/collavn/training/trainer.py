@@ -178,20 +178,24 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     keys = policy_keys(cfg.model.map.use_depth)
     assert run.state is not None
     obs_t = obs_to_torch(run.obs, keys, device)
-    rollout = Rollout.allocate(cfg.ppo.rollout_steps, obs_t, run.state)
+    rollout: Rollout | None = None
     beta = expert_probability(cfg.imitation, run.iteration)
     comm = CommStats()
     start = time.perf_counter()
-    for t in range(rollout.steps):
+    for t in range(cfg.ppo.rollout_steps):
         start_t = episode_start(run.obs, device)
         out = model.act(obs_t, run.state, start_t)
+        if rollout is None:  # stores only what the update reads (see Rollout)
+            rollout = Rollout.allocate(
+                cfg.ppo.rollout_steps, {k: obs_t[k] for k in model.replay_keys()},
+                run.state, {k: out.percepts[k] for k in model.stored_percepts})
         actions = out.action.cpu().numpy().astype(np.float64)
         stored = out.raw_action
         if run.expert is not None:
             expert = expert_actions(run.expert, run.obs)
             actions = mix_actions(actions, expert, beta, run.rng)
             stored = torch.as_tensor(expert, dtype=torch.float32, device=device)
-        rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value)
+        rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value, out.percepts)
         comm.add(tally(out.message, obs_t["active"]))
         run.maps.observe(run.obs)
         run.obs, reward, terminated, truncated, info = run.env.step(actions)
@@ -199,6 +203,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
         track_episodes(run, reward, info)
         run.state = out.state
         obs_t = obs_to_torch(run.obs, keys, device)
+    assert rollout is not None
     with torch.no_grad():
         rollout.last_value = model(obs_t, run.state, episode_start(run.obs, device)).value
     seconds = time.perf_counter() - start
