@@ -31,6 +31,8 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
                     "Score random, oracle or a checkpoint on a dataset: records and tables."),
     ("viz",): ("collavn.cli.viz", "Viz",
                "Trajectory maps and an episode GIF from an evaluation's output."),
+    ("pretrain",): ("collavn.cli.pretrain", "main",
+                    "Pretrain the frame perception on simulator labels → encoder.pt."),
     ("train",): ("collavn.cli.train", "main",
                  "Train ours / no-mem / no-com (PPO) or il; checkpoints, TensorBoard, resume."),
 }

@@ -233,8 +233,11 @@ class ActorCritic(nn.Module):
 
     def perceive(self, obs: Mapping[str, Tensor], stored: Mapping[str, Tensor] | None = None
                  ) -> Percepts:
-        """The percepts of one step: ``o (E, N, embed)``, ``g (E, N, goal)``, ``map_logits
-        (E, N, 2, m, m)``, ``map_hidden (E, N, hidden)``; those in ``stored`` are reused."""
+        """The percepts of one step; those in ``stored`` are reused, not recomputed.
+
+        ``o (E, N, embed)``, ``g (E, N, goal)``, ``map_logits (E, N, 2, m, m)``,
+        ``map_hidden (E, N, hidden)``.
+        """
         out = dict(stored or {})
         if not all(k in out for k in FRAME_PERCEPTS):
             out["o"], out["g"] = self._dispatch(AgentTower.see, obs["panorama"], obs["goal"])

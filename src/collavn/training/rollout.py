@@ -64,8 +64,10 @@ class Rollout:
     @classmethod
     def allocate(cls, steps: int, first_obs: Mapping[str, Tensor], initial_state: AgentState,
                  percepts: Mapping[str, Tensor] | None = None) -> Rollout:
-        """Empty storage for ``steps`` steps shaped like ``first_obs`` and ``percepts``
-        (one step's, ``(E, N, ...)``)."""
+        """Empty storage for ``steps`` steps shaped like one step's ``(E, N, ...)`` inputs.
+
+        ``first_obs`` and ``percepts`` give the entries kept and their shapes.
+        """
         e, n = first_obs["active"].shape
         dev = first_obs["active"].device
 

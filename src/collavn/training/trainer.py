@@ -30,12 +30,14 @@ from collavn.envs.vector import VectorEnv
 from collavn.errors import CheckpointError
 from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
+from collavn.perception.encoder import EncoderFile, install_encoder, load_encoder
 from collavn.policies import OraclePolicy
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
 from collavn.policies.base import CommStats
 from collavn.policies.checkpoint import load_checkpoint, save_checkpoint, tally
 from collavn.scenes import Scene, load_scene
 from collavn.scenes.splits import scene_specs
+from collavn.threads import apply_threads
 from collavn.training import distributed
 from collavn.training.checkpoint import check_config, differences, saved_config
 from collavn.training.config import TrainConfig
@@ -108,8 +110,25 @@ def set_train_mode(model: nn.Module) -> None:
             m.eval()
 
 
+def resolve_encoder(cfg: TrainConfig) -> tuple[TrainConfig, EncoderFile | None]:
+    """Load ``--encoder`` and record its checksum in the config (refuse a changed file)."""
+    if not cfg.run.encoder:
+        return cfg, None
+    encoder = load_encoder(cfg.run.encoder)
+    if cfg.run.encoder_sha256 and cfg.run.encoder_sha256 != encoder.sha256:
+        raise CheckpointError(f"encoder {cfg.run.encoder} has checksum {encoder.sha256[:12]}…, "
+                              f"not the {cfg.run.encoder_sha256[:12]}… this run was made with")
+    return cfg.with_run(encoder_sha256=encoder.sha256), encoder
+
+
 def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device) -> Run:
-    """Scenes, envs, model (same initial weights on every rank), optimizers."""
+    """Threads, scenes, envs, model, optimizers.
+
+    The model has the same initial weights on every rank; a pretrained encoder is
+    installed and frozen.
+    """
+    apply_threads(cfg.run.torch_threads)
+    cfg, encoder = resolve_encoder(cfg)
     specs = list(cfg.run.scenes) or scene_specs("train")
     scenes = [load_scene(s) for s in distributed.shard(specs, info)]
     env = VectorEnv(scene_window(scenes, cfg.run.num_envs, 0), cfg.run.num_envs,
@@ -118,6 +137,8 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     model = ActorCritic(cfg.model, device=device)
     if cfg.run.init_from:
         initialise_from(model, cfg, cfg.run.init_from)
+    if encoder is not None:
+        install_encoder(model, encoder, cfg.env.camera_height)
     distributed.broadcast_parameters(model)
     set_train_mode(model)
     optimizer = torch.optim.Adam(policy_parameters(model), lr=cfg.learning_rate, eps=1e-5)
