@@ -1,20 +1,26 @@
 """Training throughput: agent-steps/s of collection alone and of the whole loop.
 
 Runs the real trainer pieces (``collect_rollout`` then ``learn``: GAE + PPO epochs, or
-the imitation step) for a few updates of each preset and prints agent-steps per second.
-The ``paper`` preset (ResNet18 on 512×128) is slow on a CPU: by default it runs with
-fewer envs and a short rollout; the rates are per agent-step, so they compare.
-"collect" is acting in the envs (render + policy forward) without the map updates that
-run between env steps; "map share" is the fraction of the loop spent training the map
-(the paper's 10 updates of batch 64 per env step dominate a CPU run).
+the imitation step) for a few updates of each preset and method and prints agent-steps
+per second. The ``paper`` preset (ResNet18 on 512×128) is slow on a CPU: by default it
+runs with fewer envs and a short rollout; the rates are per agent-step, so they compare.
+"collect" is acting in the envs (render + policy forward) without the map updates;
+"map share" is the fraction of the loop spent training the map.
 
-Usage: ``python benchmarks/train.py [--presets cpu paper] [--method ours] [--updates 2]
-[--threads 2] [--paper-envs 2] [--paper-rollout 4]``.
+``--encoder DIR/encoder.pt`` trains on a frozen pretrained encoder (its features stored
+in the rollout, as ``collavn train --encoder``). ``--contended`` measures every row twice,
+alone and with a second process spinning on one core, and prints the ratio (a run should
+keep at least half its speed when another one shares a 2-core machine).
+
+Usage: ``python benchmarks/train.py [--presets cpu paper] [--methods no-com ours]
+[--updates 2] [--torch-threads 0] [--render-threads 1] [--encoder FILE] [--contended]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import subprocess
+import sys
 import time
 from dataclasses import replace
 
@@ -59,33 +65,59 @@ def measure(cfg: TrainConfig, updates: int) -> tuple[float, float, float]:
     return steps / (collect_s - map_s), steps / total_s, map_s / total_s
 
 
+def busy_process() -> subprocess.Popen[bytes]:
+    """A second process spinning on one core until it is killed."""
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+
+
+def row(preset: str, method: str, args: argparse.Namespace) -> TrainConfig:
+    """The benchmark's config of one preset and method."""
+    from collavn.scenes.splits import scene_specs
+
+    scenes = tuple(scene_specs("train")[: args.scenes])
+    cfg = preset_config(preset, method=method).with_run(
+        scenes=scenes, progress=False, torch_threads=args.torch_threads, encoder=args.encoder)
+    cfg = cfg.with_env(render_threads=args.render_threads)
+    if preset == "paper":
+        cfg = replace(cfg, ppo=replace(cfg.ppo, rollout_steps=args.paper_rollout)
+                      ).with_run(num_envs=args.paper_envs)
+    return cfg
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--presets", nargs="+", default=["cpu", "paper"])
-    parser.add_argument("--method", default="ours")
+    parser.add_argument("--methods", nargs="+", default=["no-com", "ours"])
     parser.add_argument("--updates", type=int, default=2)
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--torch-threads", type=int, default=0, help="0 = automatic")
+    parser.add_argument("--render-threads", type=int, default=1)
+    parser.add_argument("--encoder", default="", help="a pretrained encoder.pt (frozen)")
+    parser.add_argument("--contended", action="store_true",
+                        help="also measure with a second process busy on one core")
     parser.add_argument("--paper-envs", type=int, default=2)
     parser.add_argument("--paper-rollout", type=int, default=4)
     parser.add_argument("--scenes", type=int, default=8, help="training scenes to load")
     args = parser.parse_args()
-    torch.set_num_threads(args.threads)
-    from collavn.scenes.splits import scene_specs
-
-    scenes = tuple(scene_specs("train")[: args.scenes])
-    print(f"method {args.method}, {args.threads} torch threads, {args.updates} updates")
-    print(f"{'preset':<8}{'envs':>6}{'agents':>8}{'T':>5}{'collect st/s':>15}{'loop st/s':>12}"
-          f"{'map share':>11}")
+    print(f"{args.updates} updates, torch threads {args.torch_threads or 'auto'}, "
+          f"render threads {args.render_threads}, encoder {args.encoder or 'none (pixels)'}")
+    print(f"{'preset':<8}{'method':<8}{'envs':>5}{'T':>4}{'collect st/s':>14}"
+          f"{'loop st/s':>11}{'map share':>11}" + (f"{'contended':>11}{'ratio':>7}"
+                                                   if args.contended else ""))
     for preset in args.presets:
-        cfg = preset_config(preset, method=args.method).with_run(scenes=scenes, progress=False)
-        cfg = cfg.with_env(render_threads=args.threads)
-        if preset == "paper":
-            cfg = replace(cfg, ppo=replace(cfg.ppo, rollout_steps=args.paper_rollout)
-                          ).with_run(num_envs=args.paper_envs)
-        collect, loop, share = measure(cfg, args.updates)
-        print(f"{preset:<8}{cfg.run.num_envs:>6}{cfg.env.num_agents:>8}"
-              f"{cfg.ppo.rollout_steps:>5}"
-              f"{collect:>15.1f}{loop:>12.1f}{share:>10.0%}")
+        for method in args.methods:
+            cfg = row(preset, method, args)
+            collect, loop, share = measure(cfg, args.updates)
+            line = (f"{preset:<8}{method:<8}{cfg.run.num_envs:>5}{cfg.ppo.rollout_steps:>4}"
+                    f"{collect:>14.1f}{loop:>11.1f}{share:>10.0%}")
+            if args.contended:
+                busy = busy_process()
+                try:
+                    _, contended, _ = measure(cfg, args.updates)
+                finally:
+                    busy.kill()
+                    busy.wait()
+                line += f"{contended:>11.1f}{contended / loop:>7.2f}"
+            print(line, flush=True)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """The architecture's layers read one way: a package imports only packages before it.
 
-Order from ../shared/DESIGN.md. ``errors``, ``configs`` and ``files`` are the base every
-layer may use. Imports are read with ``ast``, including those inside functions.
+Order from ../shared/DESIGN.md. ``errors``, ``configs``, ``files`` and ``threads`` are
+the base every layer may use. Imports are read with ``ast``, including those inside functions.
 """
 
 import ast
@@ -12,7 +12,7 @@ import pytest
 LAYERS = ("scenes", "simulation", "tasks", "rendering", "datasets", "metrics", "envs",
           "models", "perception", "policies", "training", "evaluation", "viz",
           "experiments", "cli")
-BASE = {"errors", "configs", "files"}
+BASE = {"errors", "configs", "files", "threads"}
 ROOT = Path(__file__).resolve().parents[1] / "src" / "collavn"
 
 

@@ -173,8 +173,9 @@ def test_odometry_input_reaches_the_actor_but_not_at_an_episode_start():
     state = model.initial_state(1, 2)
     tower = model.towers[0]
     for first in (False, True):
-        s = tower.perceive(obs["panorama"][0], obs["goal"][0], None, delta, state.grid[0],
-                           state.features[0], state.pose[0], torch.full((2,), first))[2]
+        logits, hidden = tower.predict_map(obs["panorama"][0], None)
+        s = tower.build_map(logits, hidden, delta, state.grid[0], state.features[0],
+                            state.pose[0], torch.full((2,), first))[0]
         torch.testing.assert_close(s[:, -3:], torch.zeros_like(delta) if first else delta)
     start = torch.zeros(1, 2, dtype=torch.bool)
     out = model(dict(obs, pose_delta=delta[None]), state, start)

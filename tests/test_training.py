@@ -219,16 +219,28 @@ def test_critic_warmup_moves_only_the_critic_and_lowers_the_value_loss(capsys):
         parse(["--method", "no-com", "--ppo.critic-warmup", "-1", "--out", "x"])
 
 
-def test_imitation_loss_goes_down_on_a_fixed_batch():
+def test_imitation_likelihood_falls_on_a_fixed_batch_and_its_std_is_learned():
     cfg, run, rollout = _fixed_batch("il")
     assert rollout.active.any()
+    log_std = run.model.towers[0].log_std
+    std_before = log_std.detach().clone()
     before = float(imitation_loss(run.model, rollout).detach())
+    # the loss is the Gaussian negative log-likelihood of the oracle's actions
+    with torch.no_grad():
+        out = run.model.evaluate_actions(rollout.obs, rollout.initial_state,
+                                         rollout.episode_start, rollout.raw_actions,
+                                         rollout.percepts)
+        mask = rollout.active
+        assert before == pytest.approx(float(-out.log_prob[mask].mean()), rel=1e-5)
     il = dataclasses.replace(cfg.imitation, epochs=15, num_minibatches=1, lr=1e-3)
     for group in run.optimizer.param_groups:
         group["lr"] = 1e-3
     imitation_update(run.model, run.optimizer, [rollout], il, run.generator, 1.0)
     after = float(imitation_loss(run.model, rollout).detach())
-    assert after < 0.7 * before
+    assert after < before - 0.3
+    assert log_std.requires_grad and any(id(log_std) == id(p) for g in
+                                         run.optimizer.param_groups for p in g["params"])
+    assert (log_std.detach() - std_before).abs().min() > 1e-3  # σ follows the residual
 
 
 def test_map_fifo_keeps_the_newest_samples():

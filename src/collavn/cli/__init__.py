@@ -33,6 +33,8 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
                    "Paired bootstrap differences (SR, SPL, DTS) between evaluations."),
     ("viz",): ("collavn.cli.viz", "Viz",
                "Trajectory maps and an episode GIF from an evaluation's output."),
+    ("pretrain",): ("collavn.cli.pretrain", "main",
+                    "Pretrain the frame perception on simulator labels → encoder.pt."),
     ("train",): ("collavn.cli.train", "main",
                  "Train ours / no-mem / no-com (PPO) or il; checkpoints, TensorBoard, resume."),
     ("experiment",): ("collavn.cli.experiment", "Experiment",

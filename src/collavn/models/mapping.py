@@ -223,7 +223,7 @@ class MapBuilder(nn.Module):
 
     def forward(self, panorama: Tensor, depth: Tensor | None, pose_delta: Tensor,
                 grid: Tensor, features: Tensor, pose: Tensor, first: Tensor) -> MapStep:
-        """One map update for ``B`` agents.
+        """One map update for ``B`` agents: :meth:`predict` then :meth:`update`.
 
         Args:
             panorama: ``(B, 3, H, W)`` uint8.
@@ -234,7 +234,21 @@ class MapBuilder(nn.Module):
             pose: ``(B, 3)`` previous pose.
             first: ``(B,)`` bool, this observation starts an episode (pose := 0).
         """
-        logits, hidden = self.predictor(panorama, depth)
+        logits, hidden = self.predict(panorama, depth)
+        return self.update(logits, hidden, pose_delta, grid, features, pose, first)
+
+    def predict(self, panorama: Tensor, depth: Tensor | None) -> tuple[Tensor, Tensor]:
+        """The local-map predictor alone: logits ``(B, 2, m, m)``, trunk ``(B, hidden)``.
+
+        With ``cfg.detach`` no policy gradient reaches the predictor (:meth:`update`
+        detaches), so its outputs for a stored step stay valid until the predictor's own
+        next update: a rollout stores them (see ``ActorCritic.stored_percepts``).
+        """
+        return self.predictor(panorama, depth)
+
+    def update(self, logits: Tensor, hidden: Tensor, pose_delta: Tensor, grid: Tensor,
+               features: Tensor, pose: Tensor, first: Tensor) -> MapStep:
+        """Register and fuse a predicted local patch (from :meth:`predict`) into S_{t-1}."""
         probs = torch.sigmoid(logits)
         if self.cfg.detach:  # the predictor learns from map_loss only
             probs, hidden = probs.detach(), hidden.detach()

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import cast
 
 import torch
 from torch import Tensor, nn
@@ -40,28 +41,32 @@ from collavn.models.communication import (
     write_memory,
 )
 from collavn.models.config import ModelConfig
-from collavn.models.encoders import make_encoder
+from collavn.models.frames import FramePerception
 from collavn.models.mapping import MapBuilder, MapEncoder
-from collavn.models.matching import GoalMatcher
 from collavn.models.state import AgentState
 
 ACTION_DIM = 2
 
+#: Percepts of one step, ``name → (E, N, ...)`` tensors (see :meth:`ActorCritic.perceive`).
+Percepts = dict[str, Tensor]
+#: Outputs of the frame perception (panorama and goal embeddings).
+FRAME_PERCEPTS = ("o", "g")
+#: Outputs of the local-map predictor (logits of the local patch and its trunk features).
+MAP_PERCEPTS = ("map_logits", "map_hidden")
 
-class AgentTower(nn.Module):
-    """All weights of one agent (or of every agent when parameters are shared)."""
+
+class AgentTower(FramePerception):
+    """All weights of one agent (or of every agent when parameters are shared).
+
+    Its frame perception (panorama / goal encoders, goal matcher) comes from
+    :class:`~collavn.models.frames.FramePerception`, with the same parameter names.
+    """
 
     def __init__(self, cfg: ModelConfig) -> None:
-        super().__init__()
-        emb = cfg.embed_dim
+        super().__init__(cfg)
+        emb, goal = self.embed_size, self.goal_size
         map_dim = cfg.map.embed_dim + (3 if cfg.odometry_input else 0)
         self.odometry_input = cfg.odometry_input
-        self.panorama_encoder = make_encoder(cfg.encoder, cfg.panorama_shape, emb,
-                                             cfg.weights_path)
-        self.goal_encoder = make_encoder(cfg.encoder, cfg.goal_shape, emb, cfg.weights_path)
-        self.goal_matcher = (GoalMatcher(cfg.goal_match, cfg.panorama_shape, cfg.goal_shape)
-                             if cfg.goal_match.enabled else None)
-        goal = emb + (0 if self.goal_matcher is None else self.goal_matcher.output_size)
         self.map_builder = MapBuilder(cfg.map, cfg.panorama_shape)
         self.map_encoder = MapEncoder(cfg.map)
         self.comm = (None if cfg.comm.variant == "none"
@@ -77,25 +82,24 @@ class AgentTower(nn.Module):
         self.critic_value = nn.Linear(cfg.critic_hidden_size, 1)
         self.log_std = nn.Parameter(torch.full((ACTION_DIM,), cfg.log_std_init))
 
-    def perceive(self, panorama: Tensor, goal: Tensor, depth: Tensor | None,
-                 pose_delta: Tensor, grid: Tensor, features: Tensor, pose: Tensor,
-                 first: Tensor) -> tuple[Tensor, ...]:
-        """Encode one step for ``B`` agents.
+    def predict_map(self, panorama: Tensor, depth: Tensor | None) -> tuple[Tensor, Tensor]:
+        """Local-map logits ``(B, 2, m, m)`` and predictor trunk ``(B, hidden)``."""
+        return self.map_builder.predict(panorama, depth)
+
+    def build_map(self, logits: Tensor, hidden: Tensor, pose_delta: Tensor, grid: Tensor,
+                  features: Tensor, pose: Tensor, first: Tensor) -> tuple[Tensor, ...]:
+        """Fuse the predicted patch into the map and encode it for ``B`` agents.
 
         Returns:
-            o ``(B, embed)``, g ``(B, embed [+ match])``, map vector ``(B, map_embed
-            [+ 3 odometry])``, and the map step: grid ``(B, 4, S, S)``, features
-            ``(B, F, G, G)``, pose ``(B, 3)``, local logits ``(B, 2, m, m)``.
+            The map vector ``(B, map_embed [+ 3 odometry])`` and the map step: grid
+            ``(B, 4, S, S)``, features ``(B, F, G, G)``, pose ``(B, 3)``.
         """
-        o = self.panorama_encoder(panorama)
-        g = self.goal_encoder(goal)
-        if self.goal_matcher is not None:
-            g = torch.cat([g, self.goal_matcher(panorama, goal)], dim=1)
-        step = self.map_builder(panorama, depth, pose_delta, grid, features, pose, first)
+        step = self.map_builder.update(logits, hidden, pose_delta, grid, features, pose,
+                                       first)
         s = self.map_encoder(step.grid, step.features, step.pose)
         if self.odometry_input:  # last step's motion, zero at an episode's first step
             s = torch.cat([s, pose_delta * (~first).to(pose_delta.dtype)[:, None]], dim=1)
-        return o, g, s, step.grid, step.features, step.pose, step.logits
+        return s, step.grid, step.features, step.pose
 
     def heads(self, o: Tensor, g: Tensor, s: Tensor, omega: Tensor, actor_h: Tensor,
               critic_h: Tensor) -> tuple[Tensor, ...]:
@@ -122,6 +126,7 @@ class PolicyStep:
         state: The new recurrent state.
         map_logits: ``(E, N, 2, m, m)`` local map prediction (for ``map_loss``).
         message: The communication round (ω, scores, links, bytes sent).
+        percepts: This step's percepts (:meth:`ActorCritic.perceive`).
     """
 
     dist: Independent
@@ -129,6 +134,7 @@ class PolicyStep:
     state: AgentState
     map_logits: Tensor
     message: Message
+    percepts: Percepts
 
 
 @dataclass(frozen=True)
@@ -143,6 +149,8 @@ class ActOutput:
         state: The new recurrent state.
         bytes_sent: ``(E, N)`` communication traffic of each agent this step.
         message: The full communication round.
+        percepts: This step's percepts (store those in
+            :attr:`ActorCritic.stored_percepts` to replay the step without images).
     """
 
     action: Tensor
@@ -152,6 +160,7 @@ class ActOutput:
     state: AgentState
     bytes_sent: Tensor
     message: Message
+    percepts: Percepts
 
 
 @dataclass(frozen=True)
@@ -177,6 +186,7 @@ class ActorCritic(nn.Module):
         self.cfg = cfg
         copies = cfg.max_agents if cfg.per_agent_params else 1
         self.towers = nn.ModuleList([AgentTower(cfg) for _ in range(copies)])
+        self.frames_frozen = False
         if device is not None:
             self.to(device)
 
@@ -189,25 +199,77 @@ class ActorCritic(nn.Module):
         """Zero state for ``num_envs × num_agents`` agents on the model's device."""
         return AgentState.zeros(self.cfg, num_envs, num_agents, device=self.device)
 
+    def freeze_frames(self) -> None:
+        """Freeze every tower's frame perception (e.g. after loading a pretrained encoder).
+
+        Its weights stop requiring gradients and its outputs ``o, g`` join
+        :attr:`stored_percepts`: a rollout stores them and updates never run it again.
+        """
+        for tower in self.towers:
+            for module in cast(AgentTower, tower).frame_modules():
+                module.requires_grad_(False)
+        self.frames_frozen = True
+
+    @property
+    def stored_percepts(self) -> tuple[str, ...]:
+        """Percepts that no policy gradient can change, so a rollout stores them.
+
+        ``o, g`` when the frame perception is frozen (:meth:`freeze_frames`); the local
+        map prediction when ``MapConfig.detach`` (the predictor learns only from its own
+        supervised updates, which run between policy updates). Recomputing a stored
+        percept in a PPO epoch would give the same numbers at a CNN's cost.
+        """
+        return ((FRAME_PERCEPTS if self.frames_frozen else ())
+                + (MAP_PERCEPTS if self.cfg.map.detach else ()))
+
+    def replay_keys(self) -> tuple[str, ...]:
+        """Observation entries :meth:`evaluate_actions` needs beside the stored percepts."""
+        keys = ["pose_delta", "active"]
+        if not self.frames_frozen:
+            keys += ["panorama", "goal"]
+        if not self.cfg.map.detach:
+            keys += ["panorama"] + (["depth"] if self.cfg.map.use_depth else [])
+        return tuple(dict.fromkeys(keys))
+
+    def perceive(self, obs: Mapping[str, Tensor], stored: Mapping[str, Tensor] | None = None
+                 ) -> Percepts:
+        """The percepts of one step; those in ``stored`` are reused, not recomputed.
+
+        ``o (E, N, embed)``, ``g (E, N, goal)``, ``map_logits (E, N, 2, m, m)``,
+        ``map_hidden (E, N, hidden)``.
+        """
+        out = dict(stored or {})
+        if not all(k in out for k in FRAME_PERCEPTS):
+            out["o"], out["g"] = self._dispatch(AgentTower.see, obs["panorama"], obs["goal"])
+        if not all(k in out for k in MAP_PERCEPTS):
+            out["map_logits"], out["map_hidden"] = self._dispatch(
+                AgentTower.predict_map, obs["panorama"], obs.get("depth"))
+        return out
+
     def forward(self, obs: Mapping[str, Tensor], state: AgentState,
-                episode_start: Tensor) -> PolicyStep:
-        """One decision step for every agent (see the module docstring for shapes)."""
+                episode_start: Tensor, percepts: Mapping[str, Tensor] | None = None
+                ) -> PolicyStep:
+        """One decision step for every agent (see the module docstring for shapes).
+
+        ``percepts``: stored percepts of this step (:meth:`perceive`); images are then
+        only read for the percepts not given.
+        """
         state = state.reset(episode_start)
         active = obs["active"].bool()
-        pano = obs["panorama"]
-        if self.cfg.per_agent_params and pano.shape[1] > len(self.towers):
-            raise ValueError(f"{pano.shape[1]} agents but only {len(self.towers)} "
+        if self.cfg.per_agent_params and active.shape[1] > len(self.towers):
+            raise ValueError(f"{active.shape[1]} agents but only {len(self.towers)} "
                              "per-agent parameter sets (ModelConfig.max_agents)")
-        o, g, s, grid, feats, pose, logits = self._dispatch(
-            AgentTower.perceive, pano, obs["goal"], obs.get("depth"),
-            obs["pose_delta"].float(), state.grid, state.features, state.pose, episode_start)
-        message, keys, values, count = self._communicate(o, s, state, active)
+        p = self.perceive(obs, percepts)
+        s, grid, feats, pose = self._dispatch(
+            AgentTower.build_map, p["map_logits"], p["map_hidden"], obs["pose_delta"].float(),
+            state.grid, state.features, state.pose, episode_start)
+        message, keys, values, count = self._communicate(p["o"], s, state, active)
         mean, log_std, value, actor_h, critic_h = self._dispatch(
-            AgentTower.heads, o, g, s, message.omega, state.actor_h, state.critic_h)
+            AgentTower.heads, p["o"], p["g"], s, message.omega, state.actor_h, state.critic_h)
         new = AgentState(actor_h, critic_h, grid, feats, pose, keys, values, count,
                          state.steps + 1).where(active, state)
         dist = Independent(Normal(mean, log_std.exp()), 1)
-        return PolicyStep(dist, value, new, logits, message)
+        return PolicyStep(dist, value, new, p["map_logits"], message, p)
 
     @torch.no_grad()
     def act(self, obs: Mapping[str, Tensor], state: AgentState, episode_start: Tensor,
@@ -216,21 +278,26 @@ class ActorCritic(nn.Module):
         step = self(obs, state, episode_start)
         raw = step.dist.mean if deterministic else step.dist.sample()
         return ActOutput(raw.clamp(-1.0, 1.0), raw, step.dist.log_prob(raw), step.value,
-                         step.state, step.message.bytes_sent, step.message)
+                         step.state, step.message.bytes_sent, step.message, step.percepts)
 
     def evaluate_actions(self, obs: Mapping[str, Tensor], state: AgentState,
-                         episode_start: Tensor, raw_actions: Tensor) -> EvaluateOutput:
-        """Re-run stored sequences for recurrent PPO.
+                         episode_start: Tensor, raw_actions: Tensor,
+                         percepts: Mapping[str, Tensor] | None = None) -> EvaluateOutput:
+        """Re-run stored sequences for recurrent PPO (and imitation).
 
         Args:
-            obs: Observation dict with a leading time axis, every entry ``(T, E, N, ...)``.
+            obs: Observation dict with a leading time axis, every entry ``(T, E, N, ...)``
+                (only :meth:`replay_keys` are read when ``percepts`` holds
+                :attr:`stored_percepts`).
             state: The state before the first step (stored at rollout time, detached).
             episode_start: ``(T, E, N)`` bool.
             raw_actions: ``(T, E, N, 2)`` unclipped actions from :meth:`act`.
+            percepts: Stored percepts ``(T, E, N, ...)`` (see :meth:`forward`).
         """
         log_probs, entropies, values = [], [], []
         for t in range(raw_actions.shape[0]):
-            step = self({k: v[t] for k, v in obs.items()}, state, episode_start[t])
+            step = self({k: v[t] for k, v in obs.items()}, state, episode_start[t],
+                        None if percepts is None else {k: v[t] for k, v in percepts.items()})
             log_probs.append(step.dist.log_prob(raw_actions[t]))
             entropies.append(step.dist.entropy())
             values.append(step.value)

@@ -67,7 +67,7 @@ METHODS: dict[str, MethodSpec] = {
 RUN_CONTROL_FIELDS = ("run.out", "run.resume", "run.overwrite",
                       "run.total_steps", "run.time_budget_minutes",
                       "run.progress", "run.device", "run.log_interval", "run.torch_threads",
-                      "env.render_threads")
+                      "env.render_threads", "run.encoder")
 
 
 @dataclass(frozen=True)
@@ -209,12 +209,21 @@ class RunConfig:
     device: str = "cpu"
     """Torch device (``cpu``, ``cuda``; under torchrun ``cuda`` means ``cuda:LOCAL_RANK``)."""
     torch_threads: int = 0
-    """``torch.set_num_threads`` per process (0 = leave torch's default)."""
+    """torch threads per process; 0 = automatic: one torch, inter-op and Numba thread
+    (two runs can share two cores; see :mod:`collavn.threads`)."""
     progress: bool = True
     """Show a progress bar (rank 0)."""
     init_from: str = ""
     """Start from the model weights of this checkpoint (e.g. an ``il`` run's, to
     fine-tune it with PPO); its model config must match. Optimizers start fresh."""
+
+    encoder: str = ""
+    """A pretrained frame perception (``collavn pretrain`` → ``encoder.pt``), frozen: it
+    runs once per env step during collection, the rollout stores its features, and PPO
+    epochs and imitation updates never run it again. Empty = learn from pixels."""
+    encoder_sha256: str = ""
+    """Checksum of the ``encoder`` file, filled in by the run and saved with its config
+    (a resume refuses another file); give it to insist on one file."""
 
     def __post_init__(self) -> None:
         for name in ("num_envs", "total_steps", "checkpoint_interval", "log_interval"):

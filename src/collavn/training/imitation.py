@@ -5,12 +5,18 @@ so it *is* a single-agent policy; during training every agent of an env runs a c
 it and each copy is supervised by the oracle's action towards its own goal (the other
 agents are just moving obstacles, as at test time).
 
-Behaviour cloning: the oracle drives (β = 1) and the policy's mean action regresses
-onto the oracle's action (mean squared error over active agent-steps, through the
-recurrent core over whole sequences). DAgger: the learner drives with probability
-``1 − β`` per env and step, β decaying per update, and is still supervised by the
-oracle's action in the states it visits. The rollout stores the oracle's actions in
-``Rollout.raw_actions``.
+Behaviour cloning: the oracle drives (β = 1) and the policy maximises the likelihood of
+the oracle's action under its Gaussian — mean *and* learned standard deviation
+(``log_std``) — over active agent-steps, through the recurrent core over whole
+sequences. Mean squared error on the mean alone fixes σ, so the sampled policy stays as
+noisy as at initialisation while its mean, never asked to carry the action on its own,
+averages the expert into timid or wall-pushing moves; with the likelihood, σ shrinks to
+the residual error, the loss weighs the mean's errors by 1/σ², and the mean action is the
+policy to deploy. DAgger: the learner drives with probability ``1 − β`` per env and
+step, β decaying per update, and is still supervised by the oracle's action in the
+states it visits. The rollout stores the oracle's actions in ``Rollout.raw_actions``
+and, like PPO's, the stored percepts (a frozen encoder is never re-run by the update;
+the DAgger buffer keeps the map predictions made at collection).
 """
 
 from __future__ import annotations
@@ -63,14 +69,13 @@ def mix_actions(learner: np.ndarray, expert: np.ndarray, beta: float,
 
 
 def imitation_loss(model: ActorCritic, batch: Rollout) -> Tensor:
-    """Mean squared error between the policy mean and the oracle's action, ``(T, E, N)``."""
-    state = batch.initial_state
-    errors = []
-    for t in range(batch.steps):
-        step = model({k: v[t] for k, v in batch.obs.items()}, state, batch.episode_start[t])
-        errors.append(((step.dist.mean - batch.raw_actions[t]) ** 2).sum(-1))
-        state = step.state
-    return masked_mean(torch.stack(errors), batch.active)
+    """Negative log-likelihood of the oracle's actions, mean over active ``(T, E, N)``.
+
+    ``-log N(a* | μ(s), σ)`` with the policy's own mean and learned state-independent σ.
+    """
+    out = model.evaluate_actions(batch.obs, batch.initial_state, batch.episode_start,
+                                 batch.raw_actions, batch.percepts)
+    return -masked_mean(out.log_prob, batch.active)
 
 
 def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer,

@@ -29,9 +29,12 @@ def map_parameters(model: ActorCritic) -> Iterator[nn.Parameter]:
 
 
 def policy_parameters(model: ActorCritic) -> list[nn.Parameter]:
-    """Every weight except the map predictors' (those learn from :class:`MapTrainer`)."""
+    """Every weight the policy loss trains.
+
+    Not the map predictors' (those learn from :class:`MapTrainer`), not a frozen encoder's.
+    """
     mapped = {id(p) for p in map_parameters(model)}
-    return [p for p in model.parameters() if id(p) not in mapped]
+    return [p for p in model.parameters() if id(p) not in mapped and p.requires_grad]
 
 
 class MapFIFO:

@@ -54,7 +54,7 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
     ``critic_only``: the optimised loss is the value term alone (statistics as usual).
     """
     out = model.evaluate_actions(batch.obs, batch.initial_state, batch.episode_start,
-                                 batch.raw_actions)
+                                 batch.raw_actions, batch.percepts)
     mask = batch.active
     adv = advantages
     if cfg.norm_adv:

@@ -11,6 +11,12 @@ per agent and step, the flags that cut the advantage recursion:
   :mod:`collavn.envs.vector`);
 * ``active[t]`` — the agent was still running when it acted; steps of agents that
   already finished (waiting for the others) carry no learning signal and are masked.
+
+Stored features: ``percepts`` holds, per step, what the networks that no policy
+gradient can change made of the images (``ActorCritic.stored_percepts``: a frozen
+pretrained encoder's ``o, g``; the detached local-map prediction). ``obs`` then keeps
+only what the update still reads (``ActorCritic.replay_keys``) — no images at all when
+both are stored — and PPO epochs and imitation updates never run those CNNs again.
 """
 
 from __future__ import annotations
@@ -30,7 +36,8 @@ class Rollout:
     """``T`` steps of ``E × N`` agents, every tensor with leading ``(T, E, N)``.
 
     Attributes:
-        obs: Model inputs, ``(T, E, N, ...)`` each.
+        obs: Model inputs the update reads, ``(T, E, N, ...)`` each.
+        percepts: Stored percepts, ``(T, E, N, ...)`` each (empty: none stored).
         episode_start: ``(T, E, N)`` bool.
         raw_actions: ``(T, E, N, 2)`` unclipped sampled actions (PPO) or expert targets (IL).
         log_probs: ``(T, E, N)`` log-probability of ``raw_actions`` at collection.
@@ -43,6 +50,7 @@ class Rollout:
     """
 
     obs: dict[str, Tensor]
+    percepts: dict[str, Tensor]
     episode_start: Tensor
     raw_actions: Tensor
     log_probs: Tensor
@@ -54,9 +62,12 @@ class Rollout:
     last_value: Tensor
 
     @classmethod
-    def allocate(cls, steps: int, first_obs: Mapping[str, Tensor],
-                 initial_state: AgentState) -> Rollout:
-        """Empty storage for ``steps`` steps shaped like ``first_obs`` ``(E, N, ...)``."""
+    def allocate(cls, steps: int, first_obs: Mapping[str, Tensor], initial_state: AgentState,
+                 percepts: Mapping[str, Tensor] | None = None) -> Rollout:
+        """Empty storage for ``steps`` steps shaped like one step's ``(E, N, ...)`` inputs.
+
+        ``first_obs`` and ``percepts`` give the entries kept and their shapes.
+        """
         e, n = first_obs["active"].shape
         dev = first_obs["active"].device
 
@@ -65,7 +76,9 @@ class Rollout:
 
         obs = {k: torch.zeros(steps, *v.shape, dtype=v.dtype, device=dev)
                for k, v in first_obs.items()}
-        return cls(obs, z(dtype=torch.bool), z(2), z(), z(), z(), z(dtype=torch.bool),
+        stored = {k: torch.zeros(steps, *v.shape, dtype=v.dtype, device=dev)
+                  for k, v in (percepts or {}).items()}
+        return cls(obs, stored, z(dtype=torch.bool), z(2), z(), z(), z(), z(dtype=torch.bool),
                    z(dtype=torch.bool), initial_state.detach(), torch.zeros(e, n, device=dev))
 
     @property
@@ -79,10 +92,13 @@ class Rollout:
         return self.obs["active"].bool()
 
     def insert(self, t: int, obs: Mapping[str, Tensor], start: Tensor, raw_action: Tensor,
-               log_prob: Tensor, value: Tensor) -> None:
-        """Store what the agents saw and did at step ``t``."""
-        for k, v in obs.items():
-            self.obs[k][t] = v
+               log_prob: Tensor, value: Tensor,
+               percepts: Mapping[str, Tensor] | None = None) -> None:
+        """Store what the agents saw (the kept entries) and did at step ``t``."""
+        for k in self.obs:
+            self.obs[k][t] = obs[k]
+        for k in self.percepts:
+            self.percepts[k][t] = (percepts or {})[k]
         self.episode_start[t] = start
         self.raw_actions[t] = raw_action
         self.log_probs[t] = log_prob
@@ -99,6 +115,7 @@ class Rollout:
     def select_envs(self, index: Tensor) -> Rollout:
         """The sub-rollout of some envs (all their agents, all steps)."""
         return Rollout({k: v[:, index] for k, v in self.obs.items()},
+                       {k: v[:, index] for k, v in self.percepts.items()},
                        self.episode_start[:, index], self.raw_actions[:, index],
                        self.log_probs[:, index], self.values[:, index],
                        self.rewards[:, index], self.terminated[:, index],

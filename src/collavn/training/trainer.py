@@ -38,12 +38,14 @@ from collavn.errors import CheckpointError
 from collavn.files import prepare_output_dir
 from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
+from collavn.perception.encoder import EncoderFile, install_encoder, load_encoder
 from collavn.policies import OraclePolicy
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
 from collavn.policies.base import CommStats
 from collavn.policies.checkpoint import load_checkpoint, save_checkpoint, tally
 from collavn.scenes import Scene, load_scene
 from collavn.scenes.splits import scene_specs
+from collavn.threads import apply_threads
 from collavn.training import distributed
 from collavn.training.checkpoint import check_config, differences, saved_config
 from collavn.training.config import TrainConfig
@@ -117,8 +119,25 @@ def set_train_mode(model: nn.Module) -> None:
             m.eval()
 
 
+def resolve_encoder(cfg: TrainConfig) -> tuple[TrainConfig, EncoderFile | None]:
+    """Load ``--encoder`` and record its checksum in the config (refuse a changed file)."""
+    if not cfg.run.encoder:
+        return cfg, None
+    encoder = load_encoder(cfg.run.encoder)
+    if cfg.run.encoder_sha256 and cfg.run.encoder_sha256 != encoder.sha256:
+        raise CheckpointError(f"encoder {cfg.run.encoder} has checksum {encoder.sha256[:12]}…, "
+                              f"not the {cfg.run.encoder_sha256[:12]}… this run was made with")
+    return cfg.with_run(encoder_sha256=encoder.sha256), encoder
+
+
 def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device) -> Run:
-    """Scenes, envs, model (same initial weights on every rank), optimizers."""
+    """Threads, scenes, envs, model, optimizers.
+
+    The model has the same initial weights on every rank; a pretrained encoder is
+    installed and frozen.
+    """
+    apply_threads(cfg.run.torch_threads)
+    cfg, encoder = resolve_encoder(cfg)
     specs = list(cfg.run.scenes) or scene_specs("train")
     scenes = [load_scene(cfg.run.load.spec(s)) for s in distributed.shard(specs, info)]
     env = VectorEnv(scene_window(scenes, cfg.run.num_envs, 0), cfg.run.num_envs,
@@ -127,6 +146,8 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     model = ActorCritic(cfg.model, device=device)
     if cfg.run.init_from:
         initialise_from(model, cfg, cfg.run.init_from)
+    if encoder is not None:
+        install_encoder(model, encoder, cfg.env.camera_height)
     distributed.broadcast_parameters(model)
     set_train_mode(model)
     optimizer = torch.optim.Adam(policy_parameters(model), lr=cfg.learning_rate, eps=1e-5)
@@ -187,20 +208,24 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     keys = policy_keys(cfg.model.map.use_depth)
     assert run.state is not None
     obs_t = obs_to_torch(run.obs, keys, device)
-    rollout = Rollout.allocate(cfg.ppo.rollout_steps, obs_t, run.state)
+    rollout: Rollout | None = None
     beta = expert_probability(cfg.imitation, run.iteration)
     comm = CommStats()
     start = time.perf_counter()
-    for t in range(rollout.steps):
+    for t in range(cfg.ppo.rollout_steps):
         start_t = episode_start(run.obs, device)
         out = model.act(obs_t, run.state, start_t)
+        if rollout is None:  # stores only what the update reads (see Rollout)
+            rollout = Rollout.allocate(
+                cfg.ppo.rollout_steps, {k: obs_t[k] for k in model.replay_keys()},
+                run.state, {k: out.percepts[k] for k in model.stored_percepts})
         actions = out.action.cpu().numpy().astype(np.float64)
         stored = out.raw_action
         if run.expert is not None:
             expert = expert_actions(run.expert, run.obs)
             actions = mix_actions(actions, expert, beta, run.rng)
             stored = torch.as_tensor(expert, dtype=torch.float32, device=device)
-        rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value)
+        rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value, out.percepts)
         comm.add(tally(out.message, obs_t["active"]))
         run.maps.observe(run.obs)
         run.obs, reward, terminated, truncated, info = run.env.step(actions)
@@ -208,6 +233,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
         track_episodes(run, reward, info)
         run.state = out.state
         obs_t = obs_to_torch(run.obs, keys, device)
+    assert rollout is not None
     with torch.no_grad():
         rollout.last_value = model(obs_t, run.state, episode_start(run.obs, device)).value
     seconds = time.perf_counter() - start

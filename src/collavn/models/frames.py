@@ -1,0 +1,73 @@
+"""Per-frame perception: what one step's panorama and goal image say, before any memory.
+
+:class:`FramePerception` holds the panorama encoder, the goal encoder and the goal
+matcher and turns ``(panorama, goal)`` into ``o`` (the panorama embedding) and ``g`` (the
+goal embedding, with the match vector appended when goal matching is on). It is the part
+of the agent that :mod:`collavn.perception` pretrains on simulator labels and that a
+training run can freeze (``collavn train --encoder``): frozen, its outputs depend on the
+step's images only, so they are computed once at collection and stored in the rollout.
+
+:class:`~collavn.models.policy.AgentTower` *is* a ``FramePerception`` (subclass), so a
+pretrained encoder's state dict has exactly the tower's parameter names
+(``panorama_encoder.*``, ``goal_encoder.*``, ``goal_matcher.*``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from collavn.models.config import ModelConfig
+from collavn.models.encoders import make_encoder
+from collavn.models.matching import GoalMatcher
+
+#: Submodules of :class:`FramePerception` (prefixes of its state-dict keys).
+FRAME_MODULES = ("panorama_encoder", "goal_encoder", "goal_matcher")
+
+
+def frame_spec(cfg: ModelConfig) -> dict[str, Any]:
+    """The fields of a model config that fix :class:`FramePerception`'s weights' shapes.
+
+    A pretrained encoder fits a model iff these are equal (JSON-compatible values).
+    """
+    return {"encoder": cfg.encoder, "embed_dim": cfg.embed_dim,
+            "panorama_shape": list(cfg.panorama_shape), "goal_shape": list(cfg.goal_shape),
+            "goal_match": {"enabled": cfg.goal_match.enabled,
+                           "channels": cfg.goal_match.channels,
+                           "scales": list(cfg.goal_match.scales),
+                           "output_size": cfg.goal_match.output_size}}
+
+
+class FramePerception(nn.Module):
+    """Panorama encoder, goal encoder and (optional) goal matcher of one agent."""
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        emb = cfg.embed_dim
+        self.panorama_encoder = make_encoder(cfg.encoder, cfg.panorama_shape, emb,
+                                             cfg.weights_path)
+        self.goal_encoder = make_encoder(cfg.encoder, cfg.goal_shape, emb, cfg.weights_path)
+        self.goal_matcher = (GoalMatcher(cfg.goal_match, cfg.panorama_shape, cfg.goal_shape)
+                             if cfg.goal_match.enabled else None)
+        self.embed_size = emb
+        self.goal_size = emb + (0 if self.goal_matcher is None
+                                else self.goal_matcher.output_size)
+
+    def see(self, panorama: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
+        """``(B, 3, H, W)``, ``(B, 3, Hg, Wg)`` uint8 → o ``(B, embed)``, g ``(B, goal_size)``."""
+        o = self.panorama_encoder(panorama)
+        g = self.goal_encoder(goal)
+        if self.goal_matcher is not None:
+            g = torch.cat([g, self.goal_matcher(panorama, goal)], dim=1)
+        return o, g
+
+    def frame_modules(self) -> list[nn.Module]:
+        """The submodules named in :data:`FRAME_MODULES` that exist."""
+        return [m for name in FRAME_MODULES if (m := getattr(self, name)) is not None]
+
+    def frame_state_dict(self) -> dict[str, Tensor]:
+        """The state dict of the frame modules only (keys as in the full module)."""
+        return {k: v.detach().clone() for k, v in self.state_dict().items()
+                if k.split(".", 1)[0] in FRAME_MODULES}

@@ -1,0 +1,165 @@
+"""Supervised pretraining of the frame perception on simulator labels (``collavn pretrain``).
+
+Why these labels (:mod:`collavn.perception.labels`): a navigation policy needs, every
+step, (1) which way the shortest path to the goal leaves the agent — the label that turns
+imitation into reading one number, and that the goal image alone must reveal (goal
+matching makes it easy when the goal's surfaces are in view, the panorama's layout when
+they are not); (2) how far the goal still is (geodesic, not straight-line: round corners
+the straight line lies); (3) the straight-line bearing of the goal, which ties the goal
+image's content to a direction in the panorama; (4) how far the robot can drive in every
+direction — the label whose absence makes learned agents push into walls. Relative pose
+between two views is left out: odometry is an input and the map integrates it.
+
+The loop: render and label the frames once (train and val scenes), then
+``steps`` Adam steps on random pairs with exact rotation/mirror augmentation; TensorBoard
+scalars, held-out accuracy per label every ``eval_interval`` steps, and ``encoder.pt``
+written atomically at the end (also when the time budget runs out).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from collavn.models.frames import FramePerception
+from collavn.perception.config import PretrainConfig
+from collavn.perception.encoder import encoder_spec, save_encoder
+from collavn.perception.frames import FrameSet, render_frames, sample_batch
+from collavn.perception.heads import LABELS, PerceptionHeads, accuracies, losses, targets
+from collavn.scenes import load_scene
+from collavn.scenes.splits import scene_specs
+from collavn.threads import apply_threads
+
+ENCODER_FILE = "encoder.pt"
+
+
+@dataclass(frozen=True)
+class PretrainResult:
+    """What :func:`pretrain` returns: steps done, last held-out metrics, the file."""
+
+    steps: int
+    metrics: dict[str, float]
+    path: Path
+
+
+class Pretrainer:
+    """The frame perception, its heads and optimizer, over a train and a val frame set."""
+
+    def __init__(self, cfg: PretrainConfig, train: FrameSet, val: FrameSet) -> None:
+        self.cfg, self.train, self.val = cfg, train, val
+        torch.manual_seed(cfg.seed)
+        self.frames = FramePerception(cfg.model)
+        p = cfg.perception
+        self.heads = PerceptionHeads(self.frames.embed_size, self.frames.goal_size, p.bins,
+                                     p.hidden)
+        params = [*self.frames.parameters(), *self.heads.parameters()]
+        self.optimizer = torch.optim.Adam(params, lr=p.lr)
+        self.rng = np.random.default_rng(cfg.seed + 1)
+
+    def loss(self, batch: dict[str, np.ndarray]) -> tuple[torch.Tensor, dict[str, float]]:
+        """Total loss of a batch and its parts."""
+        p = self.cfg.perception
+        t = {k: torch.as_tensor(v) for k, v in batch.items()}
+        o, g = self.frames.see(t["panorama"], t["goal"])
+        parts = losses(self.heads(o, g), targets(t, p.bins, p.max_distance))
+        total = torch.stack(list(parts.values())).sum()
+        return total, {k: float(v.detach()) for k, v in parts.items()}
+
+    def step(self) -> dict[str, float]:
+        """One Adam step on a fresh augmented batch; returns the losses."""
+        self.frames.train()
+        batch = sample_batch(self.train, self.cfg.perception.batch_size, self.cfg.perception,
+                             self.rng)
+        total, parts = self.loss(batch)
+        self.optimizer.zero_grad()
+        total.backward()
+        self.optimizer.step()
+        return {"loss/total": float(total.detach()), **{f"loss/{k}": v
+                                                         for k, v in parts.items()}}
+
+    @torch.no_grad()
+    def evaluate(self, pairs: int = 1024) -> dict[str, float]:
+        """Held-out accuracy and loss per label on ``pairs`` val pairs (fixed draw)."""
+        self.frames.eval()
+        p = self.cfg.perception
+        rng = np.random.default_rng(12345)
+        right: dict[str, list[float]] = {k: [] for k in LABELS}
+        loss = []
+        for _ in range(max(1, pairs // p.batch_size)):
+            batch = sample_batch(self.val, p.batch_size, p, rng, augment=False)
+            t = {k: torch.as_tensor(v) for k, v in batch.items()}
+            o, g = self.frames.see(t["panorama"], t["goal"])
+            pred, target = self.heads(o, g), targets(t, p.bins, p.max_distance)
+            loss.append(float(torch.stack(list(losses(pred, target).values())).sum()))
+            for k, v in accuracies(pred, target).items():
+                right[k].append(float(v))
+        return {"val/loss": float(np.mean(loss)),
+                **{f"val/{k}_accuracy": float(np.nanmean(v)) for k, v in right.items()}}
+
+
+def load_frames(cfg: PretrainConfig, progress: object) -> tuple[FrameSet, FrameSet]:
+    """Render and label the train and val frame sets."""
+    from rich.progress import Progress, TaskID
+
+    assert isinstance(progress, Progress)
+    p = cfg.perception
+    rng = np.random.default_rng(cfg.seed)
+    out = []
+    for specs, count, name in ((cfg.scenes or tuple(scene_specs("train")),
+                                p.frames_per_scene, "train"),
+                               (cfg.val_scenes or tuple(scene_specs("val")),
+                                p.val_frames_per_scene, "val")):
+        task = progress.add_task(f"rendering {name} frames", total=len(specs))
+        scenes = [load_scene(s) for s in specs]
+
+        def advance(k: int, task: TaskID = task) -> None:
+            progress.advance(task, k)
+
+        out.append(render_frames(scenes, cfg.env, p, count, rng, advance))
+    return out[0], out[1]
+
+
+def pretrain(cfg: PretrainConfig) -> PretrainResult:
+    """Pretrain the frame perception; writes ``OUT/encoder.pt``."""
+    from rich.progress import Progress
+    from torch.utils.tensorboard import SummaryWriter
+
+    apply_threads(cfg.torch_threads)
+    started = time.perf_counter()
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
+    writer = SummaryWriter(str(out))
+    budget = 60.0 * cfg.time_budget_minutes
+    with Progress(disable=not cfg.progress) as progress:
+        train, val = load_frames(cfg, progress)
+        trainer = Pretrainer(cfg, train, val)
+        task = progress.add_task("pretraining", total=cfg.perception.steps)
+        metrics: dict[str, float] = {}
+        step = 0
+        while step < cfg.perception.steps:
+            scalars = trainer.step()
+            step += 1
+            over = budget > 0 and time.perf_counter() - started >= budget
+            if step % cfg.eval_interval == 0 or step == cfg.perception.steps or over:
+                metrics = trainer.evaluate()
+                scalars.update(metrics)
+            if step % cfg.log_interval == 0 or "val/loss" in scalars:
+                for k, v in scalars.items():
+                    writer.add_scalar(k, v, step)
+            progress.update(task, completed=step, description=(
+                f"pretraining loss {scalars['loss/total']:.3f}"
+                + (f" path acc {metrics['val/path_bearing_accuracy']:.2f}" if metrics
+                   else "")))
+            if over:
+                break
+    writer.close()
+    path = save_encoder(out / ENCODER_FILE, trainer.frames,
+                        encoder_spec(cfg.model, cfg.env.camera_height), metrics,
+                        cfg.to_dict(), step)
+    return PretrainResult(step, metrics, path)

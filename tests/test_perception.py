@@ -1,0 +1,159 @@
+"""Perception pretraining: labels against the geodesic field, the loss falls on a tiny
+set, and a training run's encoder is frozen, stored per step and size-checked."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from collavn.errors import CheckpointError
+from collavn.models.frames import FRAME_MODULES, FramePerception
+from collavn.perception.config import PerceptionConfig, PretrainConfig
+from collavn.perception.encoder import encoder_spec, load_encoder, save_encoder
+from collavn.perception.frames import render_frames, sample_batch
+from collavn.perception.labels import column_of, free_space, goal_columns, path_columns
+from collavn.perception.pretrain import Pretrainer
+from collavn.training.distributed import DistInfo
+from collavn.training.trainer import build_run, collect_rollout, learn, sync_point
+from training_fixtures import TINY_MODEL, tiny_config
+
+W = 64
+
+
+def circular_gap(a, b, width=W):
+    """Distance between columns around the panorama."""
+    d = np.mod(np.asarray(a) - np.asarray(b), width)
+    return np.minimum(d, width - d)
+
+
+def test_labels_agree_with_the_geodesic_field_on_hand_picked_poses(l_corridor):
+    # L corridor: x ∈ [0, 2] for all y, and y ∈ [0, 2] for all x; goal at its far end.
+    goal = np.array([8.0, 1.0])
+    field = l_corridor.geodesic_field(goal)
+    pos = np.array([[1.0, 8.0], [1.0, 1.0], [5.0, 1.0]])
+    yaw = np.array([0.0, np.pi / 2, np.pi])
+    # (1, 8) facing +x: the path leaves down the corridor (−y, to the right); the goal
+    # itself lies at −45°. (1, 1) facing +y: the goal (+x) is to the right. (5, 1) facing
+    # −x: the goal is straight behind.
+    path = path_columns(field, pos, yaw, W)
+    expected = [column_of(-np.pi / 2, W), column_of(-np.pi / 2, W), column_of(np.pi, W)]
+    assert (circular_gap(path, expected) <= W / 72 + 1e-9).all()  # 5° ring resolution
+    np.testing.assert_allclose(goal_columns(pos, yaw, goal, W),
+                               [column_of(-np.pi / 4, W), 3 * W / 4, 0.0], atol=1e-9)
+    d = field.distance(pos)
+    assert 11.0 < d[0] < 14.0 and d[2] == pytest.approx(3.0, abs=0.15)
+    # turning left by k columns' worth moves the labels k columns right
+    k = 5
+    turned = path_columns(field, pos, yaw + 2 * np.pi * k / W, W)
+    assert (circular_gap(turned - path, k) <= W / 72 + 1e-6).all()
+    # free space: in the 2 m corridor facing +x at (1, 5) the wall is 1 m ahead, less the
+    # robot's radius; along the corridor (+y, column W/4) more than the 4 m cap
+    free = free_space(l_corridor.nav, np.array([[1.0, 5.0]]), np.array([0.0]), W, 4.0)[0]
+    ahead, left = free[W // 2], free[W // 4]
+    assert 0.6 <= ahead <= 0.85 and left == 4.0
+
+
+def _tiny_pretrain(scene) -> tuple[PretrainConfig, Pretrainer]:
+    cfg = tiny_config("no-com")
+    p = PerceptionConfig(frames_per_scene=24, goals_per_scene=3, val_frames_per_scene=8,
+                         bins=8, batch_size=16, lr=3e-3, hidden=32, steps=80)
+    pcfg = PretrainConfig(env=cfg.env, model=cfg.model, perception=p, progress=False)
+    rng = np.random.default_rng(0)
+    train = render_frames([scene], cfg.env, p, p.frames_per_scene, rng)
+    val = render_frames([scene], cfg.env, p, p.val_frames_per_scene, rng)
+    return pcfg, Pretrainer(pcfg, train, val)
+
+
+def test_frames_are_labelled_by_the_scene(l_corridor):
+    torch.set_num_threads(1)
+    cfg, trainer = _tiny_pretrain(l_corridor)
+    frames = trainer.train
+    assert frames.panoramas.shape == (24, 3, 16, 64) and frames.goals.shape == (3, 3, 16, 16)
+    assert np.isfinite(frames.distance).all()  # one connected corridor
+    batch = sample_batch(frames, 32, cfg.perception, np.random.default_rng(1))
+    assert batch["panorama"].shape == (32, 3, 16, 64) and batch["free"].shape == (32, 64)
+    assert ((batch["path_column"] >= 0) & (batch["path_column"] < 64)).all()
+
+
+def test_pretraining_lowers_the_loss_on_a_tiny_set(l_corridor):
+    torch.set_num_threads(1)
+    cfg, trainer = _tiny_pretrain(l_corridor)
+    fixed = sample_batch(trainer.train, 64, cfg.perception, np.random.default_rng(3),
+                         augment=False)
+    with torch.no_grad():
+        before = float(trainer.loss(fixed)[0])
+    for _ in range(cfg.perception.steps):
+        trainer.step()
+    with torch.no_grad():
+        after = float(trainer.loss(fixed)[0])
+    assert after < before - 0.4
+    metrics = trainer.evaluate(pairs=32)
+    for label in ("path_bearing", "goal_bearing", "distance", "free_space"):
+        assert 0.0 <= metrics[f"val/{label}_accuracy"] <= 1.0
+
+
+def _encoder_file(tmp_path, model=TINY_MODEL, env=None):
+    env = env or tiny_config().env
+    model = dataclasses.replace(model, panorama_shape=(3, env.panorama_height,
+                                                       env.panorama_width),
+                                goal_shape=(3, env.goal_size, env.goal_size))
+    torch.manual_seed(7)
+    frames = FramePerception(model)
+    path = save_encoder(tmp_path / "encoder.pt", frames,
+                        encoder_spec(model, env.camera_height), {}, {}, 0)
+    return path, frames
+
+
+@pytest.mark.parametrize("method", ["ours", "il"])
+def test_a_frozen_encoder_runs_once_per_step_and_stays_bit_identical(tmp_path, method):
+    torch.set_num_threads(1)
+    path, frames = _encoder_file(tmp_path)
+    cfg = tiny_config(method, rollout_steps=5).with_run(encoder=str(path))
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    assert run.cfg.run.encoder_sha256 == load_encoder(path).sha256  # resume checks it
+    tower = run.model.towers[0]
+    saved = frames.frame_state_dict()
+    assert all(torch.equal(v, tower.state_dict()[k]) for k, v in saved.items())
+    trained = {id(p) for g in run.optimizer.param_groups for p in g["params"]}
+    frozen = [p for name in FRAME_MODULES for p in getattr(tower, name).parameters()]
+    assert frozen and not any(p.requires_grad or id(p) in trained for p in frozen)
+    sync_point(run)
+    rollout, _ = collect_rollout(run)
+    # the images are not kept: the update reads the stored features only
+    assert "panorama" not in rollout.obs and "goal" not in rollout.obs
+    assert {"o", "g", "map_logits", "map_hidden"} <= set(rollout.percepts)
+    if method == "ours":
+        # recomputed from the stored features, PPO's first-epoch log-probs are exact
+        with torch.no_grad():
+            out = run.model.evaluate_actions(rollout.obs, rollout.initial_state,
+                                             rollout.episode_start, rollout.raw_actions,
+                                             rollout.percepts)
+        assert torch.equal(out.log_prob, rollout.log_probs)
+        assert torch.equal(out.value, rollout.values)
+    before = {n: p.detach().clone() for n, p in run.model.named_parameters()}
+    learn(run, rollout)
+    for name, p in run.model.named_parameters():
+        moved = not torch.equal(p.detach(), before[name])
+        if name.split(".")[2] in FRAME_MODULES:
+            assert not moved, f"{name} changed"
+    assert any(not torch.equal(p.detach(), before[n])
+               for n, p in run.model.named_parameters() if "actor_core" in n)
+
+
+def test_a_run_refuses_an_encoder_made_for_other_image_sizes(tmp_path):
+    path, _ = _encoder_file(tmp_path)
+    cfg = tiny_config("no-com").with_env(panorama_width=128, panorama_height=32)
+    with pytest.raises(CheckpointError, match=r"pretrained on 3×16×64 panoramas and 16×16 "
+                                              r"goal images; this run uses 3×32×128"):
+        build_run(cfg.with_run(encoder=str(path)), DistInfo(), torch.device("cpu"))
+    other = dataclasses.replace(TINY_MODEL, embed_dim=16)
+    path, _ = _encoder_file(tmp_path, other)
+    with pytest.raises(CheckpointError, match="embed_dim: encoder 16 vs run 32"):
+        build_run(tiny_config("no-com").with_run(encoder=str(path)), DistInfo(),
+                  torch.device("cpu"))
+    with pytest.raises(CheckpointError, match="checksum"):
+        build_run(tiny_config("no-com").with_run(encoder=str(path), encoder_sha256="ab" * 32),
+                  DistInfo(), torch.device("cpu"))
