@@ -26,8 +26,9 @@ from dataclasses import replace
 
 import torch
 
-from collavn.training.config import TrainConfig, preset_config
+from collavn.training.config import TrainConfig
 from collavn.training.distributed import DistInfo
+from collavn.training.presets import preset_config
 from collavn.training.trainer import build_run, collect_rollout, learn, sync_point
 
 

@@ -39,7 +39,7 @@ from collavn.models.policy import ActorCritic
 from collavn.policies import CheckpointPolicy, RandomPolicy
 from collavn.policies.checkpoint import load_checkpoint, save_checkpoint
 from collavn.scenes import load_scene
-from collavn.training.config import PRESETS
+from collavn.training.presets import PRESETS
 from collavn.training.trainer import CHECKPOINT, train
 from training_fixtures import tiny_config
 

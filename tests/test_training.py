@@ -10,16 +10,11 @@ import torch
 
 from collavn.cli.train import parse
 from collavn.errors import CollavnError, ConfigError
-from collavn.training.config import (
-    CPU_REASONS,
-    RunConfig,
-    TrainConfig,
-    preset_config,
-    preset_deviations,
-)
+from collavn.training.config import RunConfig, TrainConfig
 from collavn.training.distributed import DistInfo
 from collavn.training.imitation import imitation_loss, imitation_update
 from collavn.training.ppo import critic_parameters, ppo_loss, ppo_update
+from collavn.training.presets import CPU_REASONS, preset_config, preset_deviations
 from collavn.training.rollout import compute_gae
 from collavn.training.trainer import build_run, collect_rollout, scene_window, sync_point
 from training_fixtures import tiny_config

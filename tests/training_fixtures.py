@@ -7,13 +7,8 @@ from typing import Any
 
 from collavn.envs.config import EnvConfig
 from collavn.models.config import CommConfig, MapConfig, ModelConfig
-from collavn.training.config import (
-    MapTrainConfig,
-    PPOConfig,
-    RunConfig,
-    TrainConfig,
-    preset_config,
-)
+from collavn.training.config import MapTrainConfig, PPOConfig, RunConfig, TrainConfig
+from collavn.training.presets import preset_config
 
 TINY_MODEL = ModelConfig.cpu(
     embed_dim=32, hidden_size=32, critic_hidden_size=16,

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import tyro
 
 from collavn.perception.config import PerceptionConfig, PretrainConfig
-from collavn.training.config import PRESETS
+from collavn.training.presets import PRESETS
 
 DEFAULT_PRESET = "cpu"
 

@@ -25,7 +25,8 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from collavn.training.config import TrainConfig, parse_train_args
+from collavn.training.config import TrainConfig
+from collavn.training.presets import parse_train_args
 
 
 def parse(args: Sequence[str], prog: str = "collavn train") -> TrainConfig:

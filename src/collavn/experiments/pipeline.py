@@ -30,7 +30,8 @@ from collavn.errors import CollavnError
 from collavn.evaluation.benchmark import EvalConfig, load_dataset, run_evaluation, write_results
 from collavn.scenes import load_scene
 from collavn.scenes.splits import scene_specs
-from collavn.training.config import PRESETS, PresetName, parse_train_args
+from collavn.training.config import PresetName
+from collavn.training.presets import PRESETS, parse_train_args
 
 #: The learning methods of the table, in the paper's order.
 LEARNED = ("il", "no-com", "no-mem", "ours")

@@ -12,6 +12,6 @@ Methods: ``ours`` (memory communication), ``no-mem`` (handshake), ``no-com`` (IP
 all decentralized PPO with per-agent critics — and ``il`` (one agent clones the
 shortest-path oracle; copies of it act at test time). ``random`` lives in
 :mod:`collavn.policies`. Presets: ``paper`` keeps the paper's values;
-``cpu`` departs from them as :func:`collavn.training.config.preset_deviations`
+``cpu`` departs from them as :func:`collavn.training.presets.preset_deviations`
 computes, each with its reason.
 """
