@@ -13,6 +13,7 @@ import dataclasses
 import json
 import math
 import typing
+from collections.abc import Sequence
 from typing import Any, TypeVar
 
 from collavn.errors import ConfigError
@@ -97,3 +98,34 @@ def check_number(name: str, value: float, minimum: float = 0.0, *,
     if not ok:
         bound = f"≥ {minimum:g}" if allow_minimum else f"> {minimum:g}"
         raise ConfigError(f"{name} must be a finite number {bound}, got {value!r}")
+
+
+def parse_with_presets(presets: dict[str, tuple[str, T]], args: Sequence[str], prog: str,
+                       purpose: str, default: str) -> T:
+    """``[--preset NAME] [flags]`` → the preset ``NAME`` (else ``default``) with flags applied.
+
+    Every field of the config is a flag; the preset supplies the defaults through
+    tyro's overridable configs (``--preset cpu`` is the subcommand ``cpu``).
+
+    Raises:
+        ConfigError: an unknown preset name.
+    """
+    import tyro
+
+    rest, preset = list(args), default
+    for i, a in enumerate(rest):
+        if a == "--preset" and i + 1 < len(rest):
+            preset = rest[i + 1]
+            del rest[i:i + 2]
+            break
+        if a.startswith("--preset="):
+            preset = a.split("=", 1)[1]
+            del rest[i]
+            break
+    if preset not in presets:
+        raise ConfigError(f"unknown preset {preset!r}; expected one of {', '.join(presets)}")
+    description = (f"{purpose}; preset {preset!r}: {presets[preset][0]} Choose the preset "
+                   f"with --preset {{{','.join(presets)}}} (default {default}).")
+    return tyro.extras.overridable_config_cli(
+        {preset: (description, presets[preset][1])}, args=[preset, *rest], prog=prog,
+        description=description)

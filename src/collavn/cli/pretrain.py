@@ -15,8 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import tyro
-
+from collavn.configs import parse_with_presets
 from collavn.perception.config import PerceptionConfig, PretrainConfig
 from collavn.training.presets import PRESETS
 
@@ -36,27 +35,9 @@ def pretrain_presets() -> dict[str, tuple[str, PretrainConfig]]:
 
 def parse(args: Sequence[str], prog: str = "collavn pretrain") -> PretrainConfig:
     """``[--preset NAME] [flags]`` → the resolved :class:`PretrainConfig`."""
-    args = list(args)
-    presets = pretrain_presets()
-    preset = DEFAULT_PRESET
-    for i, a in enumerate(args):
-        if a == "--preset" and i + 1 < len(args):
-            preset = args[i + 1]
-            del args[i:i + 2]
-            break
-        if a.startswith("--preset="):
-            preset = a.split("=", 1)[1]
-            del args[i]
-            break
-    if preset not in presets:
-        raise SystemExit(f"{prog}: error: unknown preset {preset!r}; expected one of "
-                         f"{', '.join(presets)}")
-    description = (f"Pretrain the frame perception on simulator labels; preset {preset!r}: "
-                   f"{presets[preset][0]} Choose with --preset {{{','.join(presets)}}} "
-                   f"(default {DEFAULT_PRESET}).")
-    return tyro.extras.overridable_config_cli(
-        {preset: (description, presets[preset][1])}, args=[preset, *args], prog=prog,
-        description=description)
+    return parse_with_presets(pretrain_presets(), args, prog,
+                              "Pretrain the frame perception on simulator labels",
+                              DEFAULT_PRESET)
 
 
 def main(args: Sequence[str], prog: str = "collavn pretrain") -> int:

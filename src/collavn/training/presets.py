@@ -10,8 +10,6 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
-import tyro
-
 from collavn import configs
 from collavn.envs.config import EnvConfig
 from collavn.errors import ConfigError
@@ -144,23 +142,6 @@ def parse_train_args(args: Sequence[str], prog: str = "collavn train") -> TrainC
     The preset (default :data:`DEFAULT_PRESET`) supplies the defaults through tyro's
     overridable configs; every field is a flag.
     """
-    args = list(args)
-    preset = DEFAULT_PRESET
-    for i, a in enumerate(args):
-        if a == "--preset" and i + 1 < len(args):
-            preset = args[i + 1]
-            del args[i:i + 2]
-            break
-        if a.startswith("--preset="):
-            preset = a.split("=", 1)[1]
-            del args[i]
-            break
-    if preset not in PRESETS:
-        raise SystemExit(f"{prog}: error: unknown preset {preset!r}; expected one of "
-                         f"{', '.join(PRESETS)}")
-    description = (f"Train a navigation agent (decentralized PPO or imitation); preset "
-                   f"{preset!r}: {PRESETS[preset][0]} Choose the preset with --preset "
-                   f"{{{','.join(PRESETS)}}} (default {DEFAULT_PRESET}).")
-    return tyro.extras.overridable_config_cli(
-        {preset: (description, PRESETS[preset][1])}, args=[preset, *args], prog=prog,
-        description=description)
+    return configs.parse_with_presets(
+        PRESETS, args, prog, "Train a navigation agent (decentralized PPO or imitation)",
+        DEFAULT_PRESET)
