@@ -110,7 +110,7 @@ def test_cli_compare_markdown_json_and_refusal(tmp_path, capsys):
     assert out["groups"]["overall"]["SR"]["delta"] == pytest.approx(5 / 12)
     assert main(["compare", *dirs, "--samples", "200"]) == 0
     table = capsys.readouterr().out
-    assert "| new | overall | 6 | 0.333 → 0.750 | +0.417 [" in table
+    assert "| new | base | overall | 6 | 0.333 → 0.750 | +0.417 [" in table
     assert main(["compare", dirs[0], str(tmp_path / "other")]) == 2
     assert "1 episode(s) only in base (e.g. e6)" in capsys.readouterr().err
 

@@ -223,20 +223,21 @@ def compare_records(a: Sequence[AgentRecord], b: Sequence[AgentRecord], name_a: 
 
 
 def comparisons_to_markdown(comparisons: Sequence[Comparison]) -> str:
-    """One table: a row per method and group, ``baseline → method`` and ``Δ [95 % CI]``."""
+    """One table: a row per comparison and group, ``baseline → method`` and ``Δ [95 % CI]``."""
     if not comparisons:
         return ""
     first = comparisons[0]
     metrics = list(next(iter(first.groups.values())))
     lines = [f"Paired bootstrap over episodes ({first.samples} resamples, seed {first.seed}): "
-             f"Δ = method − {first.baseline}, 95 % percentile interval.", ""]
-    header = ["method", "difficulty", "episodes"] + [
-        f"{m} ({first.baseline} → method) | Δ{m} [95 % CI]" for m in metrics]
+             f"Δ = method − baseline, 95 % percentile interval.", ""]
+    header = ["method", "baseline", "difficulty", "episodes"] + [
+        f"{m} (baseline → method) | Δ{m} [95 % CI]" for m in metrics]
     lines.append("| " + " | ".join(header) + " |")
-    lines.append("|" + "|".join([":---", ":---", "---:"] + ["---:|---:"] * len(metrics)) + "|")
+    lines.append("|" + "|".join([":---", ":---", ":---", "---:"] + ["---:|---:"] * len(metrics))
+                 + "|")
     for c in comparisons:
         for group, diffs in c.groups.items():
-            cells = [c.method, group, str(c.episodes[group])]
+            cells = [c.method, c.baseline, group, str(c.episodes[group])]
             for m in metrics:
                 d = diffs[m]
                 cells.append(f"{d.a:.3f} → {d.b:.3f} | {d.delta:+.3f} "
