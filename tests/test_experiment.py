@@ -57,3 +57,16 @@ def test_a_second_run_does_no_stage_twice_and_other_arguments_are_refused(experi
     with pytest.raises(CollavnError, match=r"other arguments.*episodes"):
         run_experiment(ExperimentConfig(out=out, episodes=2, budget_minutes=0.3,
                                         test_scenes=("procedural:1",)), write_report)
+
+
+@pytest.mark.parametrize(("flag", "value", "message"), [
+    ("--budget-minutes", "nan", "--budget-minutes must be a finite number > 0"),
+    ("--eval-share", "1.5", "--eval-share must be < 1"),
+    ("--episodes", "0", "--episodes must be an integer ≥ 1"),
+])
+def test_bad_experiment_arguments_are_one_line_errors(tmp_path, capsys, flag, value,
+                                                      message):
+    assert main(["experiment", "--out", str(tmp_path / "x"), flag, value]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("collavn: error:") and message in err
+    assert not (tmp_path / "x").exists()  # refused before any work

@@ -163,14 +163,6 @@ class VectorEnv:
         """The scene of each group, indexed by ``obs["scene_index"]``."""
         return [group.world.scene for group in self.groups]
 
-    def group_of(self, env: int) -> tuple[SceneGroup, int]:
-        """The group holding env ``env`` and its local index there."""
-        for group in self.groups:
-            hit = np.flatnonzero(group.envs == env)
-            if len(hit):
-                return group, int(hit[0])
-        raise IndexError(f"no env {env}")
-
     # -------------------------------------------------------------- internals
     def _start(self, group: SceneGroup, local: np.ndarray) -> None:
         world, envs = group.world, group.envs

@@ -120,19 +120,24 @@ class Report:
 
     def to_markdown(self) -> str:
         """The metrics table, then one line of communication per method."""
-        lines = [self.table.to_markdown(), "",
-                 "| method | comm. received | comm. when | bytes / agent-step |",
-                 "|---|---:|---:|---:|"]
-        for name, c in self.communication.items():
-            lines.append(f"| {name} | {c['received_rate']:.3f} | {c['when_rate']:.3f} | "
-                         f"{c['bytes_per_agent_step']:.1f} |")
-        return "\n".join(lines)
+        return self.table.to_markdown() + "\n\n" + communication_table(self.communication)
 
     def to_json(self) -> dict[str, Any]:
         """``{method: {"metrics", "counts", "communication"}}``, for ``--json``."""
         return {row.method: {"metrics": row.groups, "counts": row.counts,
                              "communication": self.communication.get(row.method, {})}
                 for row in self.table.rows}
+
+
+def communication_table(rates: dict[str, dict[str, float]]) -> str:
+    """Markdown: a row per method of :meth:`CommStats.rates` (missing rates count as 0)."""
+    lines = ["| method | comm. received | comm. when | bytes / agent-step |",
+             "|---|---:|---:|---:|"]
+    for name, c in rates.items():
+        lines.append(f"| {name} | {c.get('received_rate', 0.0):.3f} | "
+                     f"{c.get('when_rate', 0.0):.3f} | "
+                     f"{c.get('bytes_per_agent_step', 0.0):.1f} |")
+    return "\n".join(lines)
 
 
 def write_results(out: Path, results: dict[str, EvaluationResult]) -> Report:

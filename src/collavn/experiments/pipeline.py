@@ -24,9 +24,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from collavn.configs import check_count, check_number
 from collavn.datasets.build import generate_dataset
 from collavn.datasets.generator import Preset
-from collavn.errors import CollavnError
+from collavn.errors import CollavnError, ConfigError
 from collavn.evaluation.benchmark import EvalConfig, load_dataset, run_evaluation, write_results
 from collavn.scenes import load_scene
 from collavn.scenes.splits import scene_specs
@@ -76,14 +77,13 @@ class ExperimentConfig:
     --num-envs 4"``."""
 
     def __post_init__(self) -> None:
-        if not self.budget_minutes > 0:
-            raise CollavnError(f"--budget-minutes must be > 0, got {self.budget_minutes}")
-        if not 0 < self.eval_share < 1:
-            raise CollavnError(f"--eval-share must be in (0, 1), got {self.eval_share}")
-        if min(self.agents, self.adhoc_agents, self.episodes, self.num_envs,
-               self.samples) < 1:
-            raise CollavnError("agents, adhoc-agents, episodes, num-envs and samples must "
-                               "be ≥ 1")
+        check_number("--budget-minutes", self.budget_minutes)
+        check_number("--eval-share", self.eval_share)
+        if self.eval_share >= 1:
+            raise ConfigError(f"--eval-share must be < 1, got {self.eval_share}")
+        for name in ("agents", "adhoc_agents", "episodes", "num_envs", "samples"):
+            check_count("--" + name.replace("_", "-"), getattr(self, name))
+        check_count("--torch-threads", self.torch_threads, minimum=0)
 
     @property
     def train_minutes(self) -> float:
@@ -107,7 +107,6 @@ class Stage:
     run: Callable[[], dict[str, Any]]
     result: dict[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
-    skipped: bool = False
 
 
 def check_out(cfg: ExperimentConfig) -> None:
@@ -181,7 +180,7 @@ def run_experiment(cfg: ExperimentConfig, report: Callable[[ExperimentConfig, li
         marker = done_dir / f"{stage.name}.json"
         if marker.is_file():
             saved = json.loads(marker.read_text())
-            stage.result, stage.seconds, stage.skipped = saved["result"], saved["seconds"], True
+            stage.result, stage.seconds = saved["result"], saved["seconds"]
             log(f"[{stage.name}] done before, skipped")
             continue
         log(f"[{stage.name}] {shlex.join(stage.command)}")

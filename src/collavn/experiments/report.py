@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from collavn.evaluation.benchmark import communication_table
 from collavn.evaluation.compare import Comparison, compare_records, comparisons_to_markdown
 from collavn.evaluation.compare import sr_interval as interval
 from collavn.evaluation.runner import read_records
@@ -67,17 +68,16 @@ def write_report(cfg: ExperimentConfig, stages: list[Stage]) -> Path:
         "",
         "## Communication",
         "",
-        "| method | received rate | when rate | bytes / agent-step |",
-        "|---|---:|---:|---:|",
-        *[_comm_row(m, by_name[f"eval-{m}"].result) for m in (*LEARNED, *BASELINES)],
+        communication_table({m: by_name[f"eval-{m}"].result.get("communication", {})
+                             for m in (*LEARNED, *BASELINES)}),
         "",
         f"## Ad-hoCoop: `ours` trained with N = {cfg.agents}, evaluated with N = "
         f"{cfg.adhoc_agents}",
         "",
         metrics_table({f"ours (N={cfg.adhoc_agents})": adhoc}).to_markdown(),
         "",
-        _comm_row(f"ours (N={cfg.adhoc_agents})", by_name["eval-adhoc-ours"].result,
-                  header=True),
+        communication_table({f"ours (N={cfg.adhoc_agents})":
+                             by_name["eval-adhoc-ours"].result.get("communication", {})}),
         "",
         "## Comparisons (method − baseline, paired over the same episodes)",
         "",
@@ -103,16 +103,6 @@ def write_report(cfg: ExperimentConfig, stages: list[Stage]) -> Path:
     path = out / "report.md"
     path.write_text("\n".join(lines) + "\n")
     return path
-
-
-def _comm_row(name: str, result: dict[str, Any], header: bool = False) -> str:
-    c = result.get("communication", {})
-    row = (f"| {name} | {c.get('received_rate', 0):.3f} | {c.get('when_rate', 0):.3f} | "
-           f"{c.get('bytes_per_agent_step', 0):.1f} |")
-    if not header:
-        return row
-    return ("| method | received rate | when rate | bytes / agent-step |\n"
-            "|---|---:|---:|---:|\n" + row)
 
 
 def _training_line(result: dict[str, Any]) -> str:
