@@ -2,6 +2,7 @@ import pytest
 import torch
 
 from collavn.models import ActorCritic, AgentState, CommConfig, MapConfig, ModelConfig, map_loss
+from collavn.models.mapping import blend_features
 
 torch.set_num_threads(1)
 
@@ -174,8 +175,11 @@ def test_odometry_input_reaches_the_actor_but_not_at_an_episode_start():
     tower = model.towers[0]
     for first in (False, True):
         logits, hidden = tower.predict_map(obs["panorama"][0], None)
-        s = tower.build_map(logits, hidden, delta, state.grid[0], state.features[0],
-                            state.pose[0], torch.full((2,), first))[0]
+        starts = torch.full((2,), first)
+        _, seen, pose, window = tower.track_map(logits, delta, state.grid[0], state.pose[0],
+                                                starts)
+        features = blend_features(state.features[0], seen, tower.map_visual(hidden)[0])
+        s = tower.embed_map(window, features, pose, delta, starts)[0]
         torch.testing.assert_close(s[:, -3:], torch.zeros_like(delta) if first else delta)
     start = torch.zeros(1, 2, dtype=torch.bool)
     out = model(dict(obs, pose_delta=delta[None]), state, start)

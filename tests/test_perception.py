@@ -11,6 +11,7 @@ import torch
 
 from collavn.errors import CheckpointError
 from collavn.models.frames import FRAME_MODULES, FramePerception
+from collavn.models.policy import MAP_TRACK
 from collavn.perception.config import PerceptionConfig, PretrainConfig
 from collavn.perception.encoder import encoder_spec, load_encoder, save_encoder
 from collavn.perception.frames import render_frames, sample_batch
@@ -124,7 +125,7 @@ def test_a_frozen_encoder_runs_once_per_step_and_stays_bit_identical(tmp_path, m
     rollout, _ = collect_rollout(run)
     # the images are not kept: the update reads the stored features only
     assert "panorama" not in rollout.obs and "goal" not in rollout.obs
-    assert {"o", "g", "map_logits", "map_hidden"} <= set(rollout.percepts)
+    assert {"o", "g", "map_hidden", *MAP_TRACK} == set(rollout.percepts)
     if method == "ours":
         # recomputed from the stored features, PPO's first-epoch log-probs are exact
         with torch.no_grad():

@@ -127,8 +127,9 @@ def test_every_config_field_is_a_flag_with_a_docstring_in_help(capsys):
     assert "--model.panorama-shape" not in text  # derived from env, not a flag
 
 
-def _fixed_batch(method: str):
+def _fixed_batch(method: str, num_envs: int = 2):
     cfg = tiny_config(method=method, rollout_steps=6)
+    cfg = cfg.with_run(num_envs=num_envs)
     torch.set_num_threads(1)
     run = build_run(cfg, DistInfo(), torch.device("cpu"))
     sync_point(run)
@@ -156,7 +157,10 @@ def test_ppo_scores_a_rollout_with_the_model_that_collected_it(method):
     from collavn.training.map_training import map_parameters
     from collavn.training.trainer import learn
 
-    _, run, rollout = _fixed_batch(method)
+    # 4 envs × 2 agents: the BLAS kernels round a batch of fewer than 8 rows (one step
+    # of 2 × 2 agents) differently from a larger one, and the update replays all steps
+    # as one batch; from 8 rows on, the results do not depend on the batch size
+    _, run, rollout = _fixed_batch(method, num_envs=4)
     assert run.maps.owed > 0  # map updates are owed, not yet taken
     with torch.no_grad():
         out = run.model.evaluate_actions(rollout.obs, rollout.initial_state,

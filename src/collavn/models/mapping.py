@@ -199,12 +199,15 @@ class MapStep:
         features: ``(B, F, G, G)`` the updated visual-feature grid.
         pose: ``(B, 3)`` pose in the episode-start frame.
         logits: ``(B, 2, m, m)`` the local patch prediction (for :func:`map_loss`).
+        seen: ``(B, 1, G, G)`` fraction of each feature cell seen at this step (how far
+            the feature grid moved towards this step's visual feature).
     """
 
     grid: Tensor
     features: Tensor
     pose: Tensor
     logits: Tensor
+    seen: Tensor
 
 
 class MapBuilder(nn.Module):
@@ -249,14 +252,29 @@ class MapBuilder(nn.Module):
     def update(self, logits: Tensor, hidden: Tensor, pose_delta: Tensor, grid: Tensor,
                features: Tensor, pose: Tensor, first: Tensor) -> MapStep:
         """Register and fuse a predicted local patch (from :meth:`predict`) into S_{t-1}."""
+        grid_t, seen, new_pose = self.track(logits, pose_delta, grid, pose, first)
+        features_t = blend_features(features, seen, self.visual(hidden))
+        return MapStep(grid_t, features_t, new_pose, logits, seen)
+
+    def track(self, logits: Tensor, pose_delta: Tensor, grid: Tensor, pose: Tensor,
+              first: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """The map channels and the pose of :meth:`update`: new grid, ``seen``, pose.
+
+        With ``cfg.detach`` this has no parameters on its path (a rollout can store its
+        results); the visual features are :meth:`visual` and :func:`blend_features`.
+        """
         probs = torch.sigmoid(logits)
         if self.cfg.detach:  # the predictor learns from map_loss only
-            probs, hidden = probs.detach(), hidden.detach()
-        visual = self.feature_proj(hidden)  # learns from the policy loss
+            probs = probs.detach()
         new_pose = integrate_pose(pose, pose_delta)
         new_pose = torch.where(first.unsqueeze(1), torch.zeros_like(new_pose), new_pose)
-        grid_t, feat_t = self.fuse(probs, visual, new_pose, grid, features)
-        return MapStep(grid_t, feat_t, new_pose, logits)
+        grid_t, seen = self.fuse_grid(probs, new_pose, grid)
+        return grid_t, seen, new_pose
+
+    def visual(self, hidden: Tensor) -> Tensor:
+        """This step's visual feature ``(B, F)`` from the predictor trunk; it learns from
+        the policy loss (the trunk itself only from ``map_loss`` when ``cfg.detach``)."""
+        return self.feature_proj(hidden.detach() if self.cfg.detach else hidden)
 
     def fuse(self, local: Tensor, visual: Tensor, pose: Tensor, grid: Tensor,
              features: Tensor, mode: str = "bilinear") -> tuple[Tensor, Tensor]:
@@ -273,6 +291,17 @@ class MapBuilder(nn.Module):
         Returns:
             The new ``grid`` and ``features``.
         """
+        new_grid, seen = self.fuse_grid(local, pose, grid, mode)
+        return new_grid, blend_features(features, seen, visual)
+
+    def fuse_grid(self, local: Tensor, pose: Tensor, grid: Tensor,
+                  mode: str = "bilinear") -> tuple[Tensor, Tensor]:
+        """The parameter-free part of :meth:`fuse`: the new grid and the seen fraction.
+
+        Returns:
+            The new ``grid`` ``(B, 4, S, S)`` and ``seen`` ``(B, 1, G, G)``, the fraction
+            of each feature cell the registered patch covers.
+        """
         cfg = self.cfg
         placed = register_patch(local, pose, cfg.size, cfg.resolution, mode)
         here = location_disk(pose, cfg.size, cfg.resolution, cfg.agent_radius)
@@ -281,10 +310,16 @@ class MapBuilder(nn.Module):
             torch.maximum(grid[:, 2:3], here),
             here,
         ], dim=1)
-        seen = F.adaptive_avg_pool2d(placed[:, 1:2], cfg.feature_size)
-        target = visual[:, :, None, None]
-        new_features = features + seen * (target - features)
-        return new_grid, new_features
+        return new_grid, F.adaptive_avg_pool2d(placed[:, 1:2], cfg.feature_size)
+
+
+def blend_features(features: Tensor, seen: Tensor, visual: Tensor) -> Tensor:
+    """Move each feature cell towards ``visual`` ``(B, F)`` by its ``seen`` fraction.
+
+    ``features`` ``(B, F, G, G)`` (or any leading shape with ``seen`` ``(..., 1, G, G)``
+    and ``visual`` ``(..., F)`` alike).
+    """
+    return features + seen * (visual[..., None, None] - features)
 
 
 class MapEncoder(nn.Module):
@@ -307,8 +342,32 @@ class MapEncoder(nn.Module):
 
     def forward(self, grid: Tensor, features: Tensor, pose: Tensor) -> Tensor:
         """``(B, 4, S, S)``, ``(B, F, G, G)``, ``(B, 3)`` → ``(B, embed_dim)``."""
-        cfg = self.cfg
-        extent = cfg.size * cfg.resolution
-        ego = egocentric_window(grid, pose, cfg.encoder_size, extent, extent)
-        ego_f = egocentric_window(features, pose, cfg.feature_size, extent, extent)
-        return self.out(torch.cat([self.grid_net(ego), self.feature_net(ego_f)], dim=1))
+        return self.encode(self.grid_window(grid, pose), self.feature_window(features, pose))
+
+    def grid_window(self, grid: Tensor, pose: Tensor) -> Tensor:
+        """The egocentric window of the map channels, ``(B, 4, e, e)`` (no parameters)."""
+        extent = self.cfg.size * self.cfg.resolution
+        return egocentric_window(grid, pose, self.cfg.encoder_size, extent, extent)
+
+    def feature_window(self, features: Tensor, pose: Tensor) -> Tensor:
+        """The egocentric window of the feature grid, ``(B, F, G, G)`` (no parameters)."""
+        extent = self.cfg.size * self.cfg.resolution
+        return egocentric_window(features, pose, self.cfg.feature_size, extent, extent)
+
+    def encode(self, grid_window: Tensor, feature_window: Tensor) -> Tensor:
+        """The trained part: the two egocentric windows → ``(B, embed_dim)``."""
+        return self.out(torch.cat([self.grid_net(grid_window),
+                                   self._feature_vector(feature_window)], dim=1))
+
+    def _feature_vector(self, window: Tensor) -> Tensor:
+        """``feature_net`` with its 1×1 convolution done as a matrix product per cell.
+
+        The same weights and numbers up to rounding, but a 1×1 convolution rounds
+        differently for batches under 16 than for larger ones, while the matrix product
+        over ``B·G·G ≥ 8`` cells does not: one step at collection and all steps replayed
+        at once by PPO then give bit-identical results.
+        """
+        conv, _, _, linear, _ = self.feature_net
+        assert isinstance(conv, nn.Conv2d) and isinstance(linear, nn.Linear)
+        cells = F.linear(window.permute(0, 2, 3, 1), conv.weight.flatten(1), conv.bias)
+        return F.relu(linear(F.relu(cells).permute(0, 3, 1, 2).flatten(1)))

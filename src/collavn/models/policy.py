@@ -24,7 +24,7 @@ sample, which PPO must store and pass back to :meth:`ActorCritic.evaluate_action
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import cast
 
 import torch
@@ -42,7 +42,7 @@ from collavn.models.communication import (
 )
 from collavn.models.config import ModelConfig
 from collavn.models.frames import FramePerception
-from collavn.models.mapping import MapBuilder, MapEncoder
+from collavn.models.mapping import MapBuilder, MapEncoder, blend_features
 from collavn.models.state import AgentState
 
 ACTION_DIM = 2
@@ -53,6 +53,11 @@ Percepts = dict[str, Tensor]
 FRAME_PERCEPTS = ("o", "g")
 #: Outputs of the local-map predictor (logits of the local patch and its trunk features).
 MAP_PERCEPTS = ("map_logits", "map_hidden")
+#: What the map tracking makes of a step: the egocentric window of the map channels
+#: ``(4, e, e)``, the fraction of each feature cell seen ``(1, G, G)`` and the pose ``(3,)``.
+#: With ``MapConfig.detach`` no parameter is on their path, so a rollout stores them and
+#: an update never re-runs the map registration (see :meth:`ActorCritic.evaluate_actions`).
+MAP_TRACK = ("map_window", "map_seen", "map_pose")
 
 
 class AgentTower(FramePerception):
@@ -86,20 +91,29 @@ class AgentTower(FramePerception):
         """Local-map logits ``(B, 2, m, m)`` and predictor trunk ``(B, hidden)``."""
         return self.map_builder.predict(panorama, depth)
 
-    def build_map(self, logits: Tensor, hidden: Tensor, pose_delta: Tensor, grid: Tensor,
-                  features: Tensor, pose: Tensor, first: Tensor) -> tuple[Tensor, ...]:
-        """Fuse the predicted patch into the map and encode it for ``B`` agents.
+    def track_map(self, logits: Tensor, pose_delta: Tensor, grid: Tensor, pose: Tensor,
+                  first: Tensor) -> tuple[Tensor, ...]:
+        """Register the predicted patch into the map channels for ``B`` agents.
 
         Returns:
-            The map vector ``(B, map_embed [+ 3 odometry])`` and the map step: grid
-            ``(B, 4, S, S)``, features ``(B, F, G, G)``, pose ``(B, 3)``.
+            grid ``(B, 4, S, S)``, seen ``(B, 1, G, G)``, pose ``(B, 3)`` and the
+            egocentric window of the grid ``(B, 4, e, e)`` the map encoder reads.
         """
-        step = self.map_builder.update(logits, hidden, pose_delta, grid, features, pose,
-                                       first)
-        s = self.map_encoder(step.grid, step.features, step.pose)
+        grid_t, seen, pose_t = self.map_builder.track(logits, pose_delta, grid, pose, first)
+        return grid_t, seen, pose_t, self.map_encoder.grid_window(grid_t, pose_t)
+
+    def map_visual(self, hidden: Tensor) -> tuple[Tensor]:
+        """This step's visual feature ``(B, F)`` for the map's feature grid."""
+        return (self.map_builder.visual(hidden),)
+
+    def embed_map(self, window: Tensor, features: Tensor, pose: Tensor, pose_delta: Tensor,
+                  first: Tensor) -> tuple[Tensor]:
+        """The map vector ``(B, map_embed [+ 3 odometry])`` from the grid's egocentric
+        window, the feature grid and the pose."""
+        s = self.map_encoder.encode(window, self.map_encoder.feature_window(features, pose))
         if self.odometry_input:  # last step's motion, zero at an episode's first step
             s = torch.cat([s, pose_delta * (~first).to(pose_delta.dtype)[:, None]], dim=1)
-        return s, step.grid, step.features, step.pose
+        return (s,)
 
     def heads(self, o: Tensor, g: Tensor, s: Tensor, omega: Tensor, actor_h: Tensor,
               critic_h: Tensor) -> tuple[Tensor, ...]:
@@ -124,7 +138,8 @@ class PolicyStep:
         dist: Gaussian over raw actions, batch shape ``(E, N)``, event shape ``(2,)``.
         value: ``(E, N)`` critic value.
         state: The new recurrent state.
-        map_logits: ``(E, N, 2, m, m)`` local map prediction (for ``map_loss``).
+        map_logits: ``(E, N, 2, m, m)`` local map prediction (for ``map_loss``); ``None``
+            when the step was replayed from stored map percepts without them.
         message: The communication round (ω, scores, links, bytes sent).
         percepts: This step's percepts (:meth:`ActorCritic.perceive`).
     """
@@ -132,7 +147,7 @@ class PolicyStep:
     dist: Independent
     value: Tensor
     state: AgentState
-    map_logits: Tensor
+    map_logits: Tensor | None
     message: Message
     percepts: Percepts
 
@@ -169,13 +184,31 @@ class EvaluateOutput:
 
     Attributes:
         log_prob: ``(T, E, N)``; entropy: ``(T, E, N)``; value: ``(T, E, N)``.
-        state: The state after the last step.
     """
 
     log_prob: Tensor
     entropy: Tensor
     value: Tensor
+
+
+@dataclass(frozen=True)
+class Unrolled:
+    """``T`` steps of :meth:`ActorCritic.forward` (internal).
+
+    Attributes:
+        mean: ``(T, E, N, 2)``; log_std: ``(T, E, N, 2)``; value: ``(T, E, N)``.
+        state: The state after the last step (its ``grid`` is the one before the first
+            step when the map windows came from stored percepts: nothing re-tracked it).
+        percepts: Every percept of every step, ``(T, E, N, ...)``.
+        messages: The communication round of each step.
+    """
+
+    mean: Tensor
+    log_std: Tensor
+    value: Tensor
     state: AgentState
+    percepts: Percepts
+    messages: list[Message]
 
 
 class ActorCritic(nn.Module):
@@ -214,13 +247,14 @@ class ActorCritic(nn.Module):
     def stored_percepts(self) -> tuple[str, ...]:
         """Percepts that no policy gradient can change, so a rollout stores them.
 
-        ``o, g`` when the frame perception is frozen (:meth:`freeze_frames`); the local
-        map prediction when ``MapConfig.detach`` (the predictor learns only from its own
-        supervised updates, which run between policy updates). Recomputing a stored
-        percept in a PPO epoch would give the same numbers at a CNN's cost.
+        ``o, g`` when the frame perception is frozen (:meth:`freeze_frames`); with
+        ``MapConfig.detach`` (the predictor learns only from its own supervised updates,
+        which run between policy updates) the predictor's trunk ``map_hidden`` and the
+        map tracking :data:`MAP_TRACK`. Recomputing a stored percept in a PPO epoch would
+        give the same numbers at a CNN's (or a map registration's) cost.
         """
         return ((FRAME_PERCEPTS if self.frames_frozen else ())
-                + (MAP_PERCEPTS if self.cfg.map.detach else ()))
+                + (("map_hidden", *MAP_TRACK) if self.cfg.map.detach else ()))
 
     def replay_keys(self) -> tuple[str, ...]:
         """Observation entries :meth:`evaluate_actions` needs beside the stored percepts."""
@@ -233,15 +267,16 @@ class ActorCritic(nn.Module):
 
     def perceive(self, obs: Mapping[str, Tensor], stored: Mapping[str, Tensor] | None = None
                  ) -> Percepts:
-        """The percepts of one step; those in ``stored`` are reused, not recomputed.
+        """The percepts of one step (or of ``T·E`` flattened steps) that are not stored.
 
-        ``o (E, N, embed)``, ``g (E, N, goal)``, ``map_logits (E, N, 2, m, m)``,
-        ``map_hidden (E, N, hidden)``.
+        ``o (E, N, embed)``, ``g (E, N, goal)``, ``map_hidden (E, N, hidden)`` and, unless
+        the map tracking :data:`MAP_TRACK` is stored, ``map_logits (E, N, 2, m, m)``.
         """
         out = dict(stored or {})
         if not all(k in out for k in FRAME_PERCEPTS):
             out["o"], out["g"] = self._dispatch(AgentTower.see, obs["panorama"], obs["goal"])
-        if not all(k in out for k in MAP_PERCEPTS):
+        tracked = all(k in out for k in MAP_TRACK)
+        if "map_hidden" not in out or not (tracked or "map_logits" in out):
             out["map_logits"], out["map_hidden"] = self._dispatch(
                 AgentTower.predict_map, obs["panorama"], obs.get("depth"))
         return out
@@ -254,22 +289,13 @@ class ActorCritic(nn.Module):
         ``percepts``: stored percepts of this step (:meth:`perceive`); images are then
         only read for the percepts not given.
         """
-        state = state.reset(episode_start)
-        active = obs["active"].bool()
-        if self.cfg.per_agent_params and active.shape[1] > len(self.towers):
-            raise ValueError(f"{active.shape[1]} agents but only {len(self.towers)} "
-                             "per-agent parameter sets (ModelConfig.max_agents)")
-        p = self.perceive(obs, percepts)
-        s, grid, feats, pose = self._dispatch(
-            AgentTower.build_map, p["map_logits"], p["map_hidden"], obs["pose_delta"].float(),
-            state.grid, state.features, state.pose, episode_start)
-        message, keys, values, count = self._communicate(p["o"], s, state, active)
-        mean, log_std, value, actor_h, critic_h = self._dispatch(
-            AgentTower.heads, p["o"], p["g"], s, message.omega, state.actor_h, state.critic_h)
-        new = AgentState(actor_h, critic_h, grid, feats, pose, keys, values, count,
-                         state.steps + 1).where(active, state)
-        dist = Independent(Normal(mean, log_std.exp()), 1)
-        return PolicyStep(dist, value, new, p["map_logits"], message, p)
+        run = self._unroll({k: v[None] for k, v in obs.items()}, state, episode_start[None],
+                           None if percepts is None else {k: v[None] for k, v in
+                                                          percepts.items()})
+        dist = Independent(Normal(run.mean[0], run.log_std[0].exp()), 1)
+        p = {k: v[0] for k, v in run.percepts.items()}
+        return PolicyStep(dist, run.value[0], run.state, p.get("map_logits"),
+                          run.messages[0], p)
 
     @torch.no_grad()
     def act(self, obs: Mapping[str, Tensor], state: AgentState, episode_start: Tensor,
@@ -285,6 +311,11 @@ class ActorCritic(nn.Module):
                          percepts: Mapping[str, Tensor] | None = None) -> EvaluateOutput:
         """Re-run stored sequences for recurrent PPO (and imitation).
 
+        The networks without a recurrence (encoders, map encoder, feature projection) run
+        once over all ``T·E·N`` steps; only the communication and the GRU cores step
+        through time. With the frame perception frozen and ``MapConfig.detach`` the
+        stored percepts replace every image and every map registration.
+
         Args:
             obs: Observation dict with a leading time axis, every entry ``(T, E, N, ...)``
                 (only :meth:`replay_keys` are read when ``percepts`` holds
@@ -294,16 +325,80 @@ class ActorCritic(nn.Module):
             raw_actions: ``(T, E, N, 2)`` unclipped actions from :meth:`act`.
             percepts: Stored percepts ``(T, E, N, ...)`` (see :meth:`forward`).
         """
-        log_probs, entropies, values = [], [], []
-        for t in range(raw_actions.shape[0]):
-            step = self({k: v[t] for k, v in obs.items()}, state, episode_start[t],
-                        None if percepts is None else {k: v[t] for k, v in percepts.items()})
-            log_probs.append(step.dist.log_prob(raw_actions[t]))
-            entropies.append(step.dist.entropy())
-            values.append(step.value)
-            state = step.state
-        return EvaluateOutput(torch.stack(log_probs), torch.stack(entropies),
-                              torch.stack(values), state)
+        run = self._unroll(obs, state, episode_start, percepts)
+        dist = Independent(Normal(run.mean, run.log_std.exp()), 1)
+        return EvaluateOutput(dist.log_prob(raw_actions), dist.entropy(), run.value)
+
+    def _unroll(self, obs: Mapping[str, Tensor], state: AgentState, starts: Tensor,
+                stored: Mapping[str, Tensor] | None) -> Unrolled:
+        """``T`` decision steps from ``(T, E, N, ...)`` inputs (see :meth:`forward`)."""
+        steps, e, n = starts.shape
+        active = obs["active"].bool()
+        if self.cfg.per_agent_params and n > len(self.towers):
+            raise ValueError(f"{n} agents but only {len(self.towers)} "
+                             "per-agent parameter sets (ModelConfig.max_agents)")
+        flat = {k: v.reshape(steps * e, *v.shape[2:]) for k, v in obs.items()}
+        p = {k: v.reshape(steps, e, *v.shape[1:]) for k, v in self.perceive(
+            flat, None if stored is None else
+            {k: v.reshape(steps * e, *v.shape[2:]) for k, v in stored.items()}).items()}
+        delta = obs["pose_delta"].float()
+
+        def carry(mask: Tensor, new: Tensor, old: Tensor) -> Tensor:
+            return torch.where(mask.view(*mask.shape, *([1] * (new.dim() - 2))), new, old)
+
+        def cleared(x: Tensor, t: int) -> Tensor:  # an episode start clears the state
+            return carry(starts[t], torch.zeros_like(x), x)
+
+        grid, pose = state.grid, state.pose
+        if not all(k in p for k in MAP_TRACK):
+            tracked: list[tuple[Tensor, ...]] = []
+            for t in range(steps):
+                grid_t, seen, pose_t, window = self._dispatch(
+                    AgentTower.track_map, p["map_logits"][t], delta[t], cleared(grid, t),
+                    cleared(pose, t), starts[t])
+                tracked.append((window, seen, pose_t))
+                grid = carry(active[t], grid_t, cleared(grid, t))
+                pose = carry(active[t], pose_t, cleared(pose, t))
+            for key, parts in zip(MAP_TRACK, zip(*tracked, strict=True), strict=True):
+                p[key] = torch.stack(parts)
+        else:
+            pose = carry(active[-1], p["map_pose"][-1], pose)  # grid: see Unrolled.state
+        visual = self._over_steps(AgentTower.map_visual, p["map_hidden"])[0]
+        features, blended = state.features, []
+        for t in range(steps):
+            f = cleared(features, t)
+            f_t = blend_features(f, p["map_seen"][t], visual[t])
+            blended.append(f_t)
+            features = carry(active[t], f_t, f)
+        s = self._over_steps(AgentTower.embed_map, p["map_window"], torch.stack(blended),
+                             p["map_pose"], delta, starts)[0]
+        core = replace(state, grid=state.grid[:, :, :0], features=state.features[:, :, :0])
+        means, log_stds, values, messages = [], [], [], []
+        for t in range(steps):
+            core = core.reset(starts[t])
+            message, keys, vals, count = self._communicate(p["o"][t], s[t], core, active[t])
+            mean, log_std, value, actor_h, critic_h = self._dispatch(
+                AgentTower.heads, p["o"][t], p["g"][t], s[t], message.omega, core.actor_h,
+                core.critic_h)
+            core = replace(core, actor_h=actor_h, critic_h=critic_h, mem_keys=keys,
+                           mem_values=vals, mem_count=count, steps=core.steps + 1
+                           ).where(active[t], core)
+            means.append(mean)
+            log_stds.append(log_std)
+            values.append(value)
+            messages.append(message)
+        final = replace(core, grid=grid, features=features, pose=pose)
+        return Unrolled(torch.stack(means), torch.stack(log_stds), torch.stack(values),
+                        final, p, messages)
+
+    def _over_steps(self, fn: Callable[..., tuple[Tensor, ...]],
+                    *args: Tensor | None) -> tuple[Tensor, ...]:
+        """:meth:`_dispatch` over ``(T, E, N, ...)`` inputs, as one batch of ``T·E`` envs."""
+        ref = next(a for a in args if a is not None)
+        steps, e = ref.shape[:2]
+        outs = self._dispatch(fn, *[None if a is None else a.reshape(steps * e, *a.shape[2:])
+                                    for a in args])
+        return tuple(out.reshape(steps, e, *out.shape[1:]) for out in outs)
 
     def _communicate(self, o: Tensor, s: Tensor, state: AgentState,
                      active: Tensor) -> tuple[Message, Tensor, Tensor, Tensor]:
