@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 from collavn.scenes.builder import SceneBuilder, flat_texture
 from collavn.scenes.scene import Scene
+
+# The suite draws the same hypothesis examples on every run, so a red CI run can be
+# repeated; HYPOTHESIS_PROFILE=explore searches new examples (run it now and then).
+settings.register_profile("ci", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 SHARED_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 

@@ -242,7 +242,8 @@ def _open_yaws(nav: NavGrid, goal: np.ndarray, rng: np.random.Generator,
                config: SamplingConfig, candidates: int = 32) -> np.ndarray:
     """Random yaws from ``goal`` with free line of sight ≥ ``min_view_depth``."""
     yaws = np.round(rng.uniform(-np.pi, np.pi, candidates), DECIMALS)
-    steps = np.arange(0.0, config.min_view_depth + 1e-9, 0.5 * nav.resolution)
+    # a fifth of a cell: a ray that only clips a blocked cell's corner is caught too
+    steps = np.arange(0.0, config.min_view_depth + 1e-9, 0.2 * nav.resolution)
     direction = np.stack([np.cos(yaws), np.sin(yaws)], axis=-1)
     points = goal + steps[None, :, None] * direction[:, None, :]
     return yaws[nav.lookup(nav.free, points, outside=False).all(axis=1)]

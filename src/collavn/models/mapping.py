@@ -272,8 +272,11 @@ class MapBuilder(nn.Module):
         return grid_t, seen, new_pose
 
     def visual(self, hidden: Tensor) -> Tensor:
-        """This step's visual feature ``(B, F)`` from the predictor trunk; it learns from
-        the policy loss (the trunk itself only from ``map_loss`` when ``cfg.detach``)."""
+        """This step's visual feature ``(B, F)`` from the predictor trunk.
+
+        It learns from the policy loss (the trunk only from ``map_loss`` when
+        ``cfg.detach``).
+        """
         return self.feature_proj(hidden.detach() if self.cfg.detach else hidden)
 
     def fuse(self, local: Tensor, visual: Tensor, pose: Tensor, grid: Tensor,

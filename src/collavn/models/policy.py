@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 from typing import cast
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 from torch.distributions import Independent, Normal
 
@@ -108,26 +109,50 @@ class AgentTower(FramePerception):
 
     def embed_map(self, window: Tensor, features: Tensor, pose: Tensor, pose_delta: Tensor,
                   first: Tensor) -> tuple[Tensor]:
-        """The map vector ``(B, map_embed [+ 3 odometry])`` from the grid's egocentric
-        window, the feature grid and the pose."""
+        """The map vector ``(B, map_embed [+ 3 odometry])``.
+
+        From the grid's egocentric window, the feature grid and the pose.
+        """
         s = self.map_encoder.encode(window, self.map_encoder.feature_window(features, pose))
         if self.odometry_input:  # last step's motion, zero at an episode's first step
             s = torch.cat([s, pose_delta * (~first).to(pose_delta.dtype)[:, None]], dim=1)
         return (s,)
 
-    def heads(self, o: Tensor, g: Tensor, s: Tensor, omega: Tensor, actor_h: Tensor,
-              critic_h: Tensor) -> tuple[Tensor, ...]:
-        """GRU cores and heads: π(O, S, ω, g) and V(O, ω).
+    def core_inputs(self, o: Tensor, g: Tensor, s: Tensor, omega: Tensor
+                    ) -> tuple[Tensor, Tensor]:
+        """The input halves of the GRU cores, ``W_ih x + b_ih``.
 
-        Returns:
-            mean ``(B, 2)``, log_std ``(B, 2)``, value ``(B,)``, actor_h, critic_h.
+        For π(O, S, ω, g) and V(O, ω [, S, g]); they need no recurrent state, so a
+        replay computes every step at once.
         """
-        actor_h = self.actor_core(torch.cat([o, s, omega, g], dim=1), actor_h)
         critic_x = [o, omega] + ([s, g] if self.critic_full_input else [])
-        critic_h = self.critic_core(torch.cat(critic_x, dim=1), critic_h)
+        return (F.linear(torch.cat([o, s, omega, g], dim=-1), self.actor_core.weight_ih,
+                         self.actor_core.bias_ih),
+                F.linear(torch.cat(critic_x, dim=-1), self.critic_core.weight_ih,
+                         self.critic_core.bias_ih))
+
+    def core_step(self, actor_in: Tensor, critic_in: Tensor, actor_h: Tensor,
+                  critic_h: Tensor) -> tuple[Tensor, Tensor]:
+        """One step of both GRU cores from their :meth:`core_inputs`."""
+        return gru_step(self.actor_core, actor_in, actor_h), gru_step(self.critic_core,
+                                                                      critic_in, critic_h)
+
+    def heads(self, actor_h: Tensor, critic_h: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Actor and critic heads: mean ``(B, 2)``, log_std ``(B, 2)``, value ``(B,)``."""
         mean = self.actor_mean(actor_h)
-        log_std = self.log_std.expand_as(mean)
-        return mean, log_std, self.critic_value(critic_h).squeeze(-1), actor_h, critic_h
+        return (mean, self.log_std.expand_as(mean),
+                self.critic_value(critic_h).squeeze(-1))
+
+
+def gru_step(cell: nn.GRUCell, gates_in: Tensor, h: Tensor) -> Tensor:
+    """``cell(x, h)`` given ``gates_in = W_ih x + b_ih`` (PyTorch's GRU equations)."""
+    gates_h = F.linear(h, cell.weight_hh, cell.bias_hh)
+    in_r, in_z, in_n = gates_in.chunk(3, dim=-1)
+    h_r, h_z, h_n = gates_h.chunk(3, dim=-1)
+    r = torch.sigmoid(in_r + h_r)
+    z = torch.sigmoid(in_z + h_z)
+    n = torch.tanh(in_n + r * h_n)
+    return n + z * (h - n)
 
 
 @dataclass(frozen=True)
@@ -372,24 +397,30 @@ class ActorCritic(nn.Module):
             features = carry(active[t], f_t, f)
         s = self._over_steps(AgentTower.embed_map, p["map_window"], torch.stack(blended),
                              p["map_pose"], delta, starts)[0]
-        core = replace(state, grid=state.grid[:, :, :0], features=state.features[:, :, :0])
-        means, log_stds, values, messages = [], [], [], []
-        for t in range(steps):
-            core = core.reset(starts[t])
-            message, keys, vals, count = self._communicate(p["o"][t], s[t], core, active[t])
-            mean, log_std, value, actor_h, critic_h = self._dispatch(
-                AgentTower.heads, p["o"][t], p["g"][t], s[t], message.omega, core.actor_h,
-                core.critic_h)
-            core = replace(core, actor_h=actor_h, critic_h=critic_h, mem_keys=keys,
-                           mem_values=vals, mem_count=count, steps=core.steps + 1
-                           ).where(active[t], core)
-            means.append(mean)
-            log_stds.append(log_std)
-            values.append(value)
+        talk = replace(state, grid=state.grid[:, :, :0], features=state.features[:, :, :0])
+        messages, omegas = [], []
+        for t in range(steps):  # communication needs no GRU state: all steps first
+            talk = talk.reset(starts[t])
+            message, keys, vals, count = self._communicate(p["o"][t], s[t], talk, active[t])
+            talk = replace(talk, mem_keys=keys, mem_values=vals, mem_count=count,
+                           steps=talk.steps + 1).where(active[t], talk)
             messages.append(message)
-        final = replace(core, grid=grid, features=features, pose=pose)
-        return Unrolled(torch.stack(means), torch.stack(log_stds), torch.stack(values),
-                        final, p, messages)
+            omegas.append(message.omega)
+        actor_in, critic_in = self._over_steps(AgentTower.core_inputs, p["o"], p["g"], s,
+                                               torch.stack(omegas))
+        actor_h, critic_h, actor_hs, critic_hs = state.actor_h, state.critic_h, [], []
+        for t in range(steps):
+            a_h, c_h = cleared(actor_h, t), cleared(critic_h, t)
+            a_new, c_new = self._dispatch(AgentTower.core_step, actor_in[t], critic_in[t],
+                                          a_h, c_h)
+            actor_hs.append(a_new)
+            critic_hs.append(c_new)
+            actor_h, critic_h = carry(active[t], a_new, a_h), carry(active[t], c_new, c_h)
+        mean, log_std, value = self._over_steps(AgentTower.heads, torch.stack(actor_hs),
+                                                torch.stack(critic_hs))
+        final = replace(talk, actor_h=actor_h, critic_h=critic_h, grid=grid,
+                        features=features, pose=pose)
+        return Unrolled(mean, log_std, value, final, p, messages)
 
     def _over_steps(self, fn: Callable[..., tuple[Tensor, ...]],
                     *args: Tensor | None) -> tuple[Tensor, ...]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from collavn.scenes.navigation import ROBOT_RADIUS, NavGrid
@@ -68,19 +69,6 @@ def overlapping(position: np.ndarray, radius: float) -> np.ndarray:
     return (d < 2 * radius).any(axis=-1)
 
 
-def _closing_in(before: np.ndarray, after: np.ndarray, limit: float) -> np.ndarray:
-    """``(E, N)``: an agent's own move brought it within ``limit`` of another agent.
-
-    True when it ends closer than ``limit`` to another agent's new position and closer
-    than it was before moving (so an agent backing away is never blamed).
-    """
-    n = after.shape[1]
-    new = np.linalg.norm(after[:, :, None] - after[:, None, :], axis=-1)
-    old = np.linalg.norm(before[:, :, None] - after[:, None, :], axis=-1)
-    new[:, np.arange(n), np.arange(n)] = np.inf
-    return ((new < limit) & (new < old)).any(axis=-1)
-
-
 def drive(nav: NavGrid, position: np.ndarray, yaw: np.ndarray, action: np.ndarray,
           moving: np.ndarray, params: AgentParams) -> DriveResult:
     """Apply one action to every agent of every env of one scene.
@@ -94,30 +82,77 @@ def drive(nav: NavGrid, position: np.ndarray, yaw: np.ndarray, action: np.ndarra
         params: Robot and timing.
     """
     dt = params.step_seconds / params.substeps
-    v = np.where(moving, action[..., 0] * params.max_linear, 0.0)
-    w = np.where(moving, action[..., 1] * params.max_angular, 0.0)
-    pos = np.array(position, dtype=np.float64)
-    heading = np.array(yaw, dtype=np.float64)
-    stopped = ~moving | (v == 0.0)
-    collided = np.zeros(moving.shape, dtype=bool)
-    distance = np.zeros(moving.shape)
-    for _ in range(params.substeps):
-        mid = heading + 0.5 * w * dt
-        heading = heading + w * dt
-        step = (v * dt)[..., None] * np.stack([np.cos(mid), np.sin(mid)], axis=-1)
-        candidate = np.where(stopped[..., None], pos, pos + step)
-        blocked = ~stopped & ~nav.is_navigable(candidate)
-        candidate[blocked] = pos[blocked]
-        # Agents moving into each other: an agent whose own move brought it within two
-        # radii of another is stopped; repeat until no overlap remains (≤ N rounds).
-        for _ in range(pos.shape[1]):
-            clash = _closing_in(pos, candidate, 2 * params.radius) & ~stopped & ~blocked
-            if not clash.any():
-                break
-            blocked |= clash
-            candidate[clash] = pos[clash]
-        distance += np.where(blocked | stopped, 0.0, np.abs(v) * dt)
-        collided |= blocked
-        stopped |= blocked
-        pos = candidate
+    moving = np.asarray(moving, dtype=bool)
+    v = np.where(moving, action[..., 0] * params.max_linear, 0.0).astype(np.float64)
+    w = np.where(moving, action[..., 1] * params.max_angular, 0.0).astype(np.float64)
+    pos, heading, distance, collided = _drive(
+        nav.navigable, float(nav.origin[0]), float(nav.origin[1]), float(nav.resolution),
+        np.array(position, dtype=np.float64), np.array(yaw, dtype=np.float64), v, w,
+        ~moving | (v == 0.0), params.substeps, dt, 2 * params.radius)
     return DriveResult(pos, wrap_angle(heading), distance, collided)
+
+
+@numba.njit(cache=True, nogil=True)
+def _drive(navigable: np.ndarray, origin_x: float, origin_y: float, resolution: float,
+           pos: np.ndarray, heading: np.ndarray, v: np.ndarray, w: np.ndarray,
+           stopped: np.ndarray, substeps: int, dt: float, limit: float
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The substep loop of :func:`drive`, one env at a time (envs never interact).
+
+    Per substep: turn about the midpoint heading, stop an agent whose move leaves the
+    navigable grid, then (≤ N rounds) stop every agent whose own move brought it within
+    ``limit`` of another agent's new position and closer than before.
+    """
+    n_envs, n = v.shape
+    h, w_cells = navigable.shape
+    distance = np.zeros((n_envs, n))
+    collided = np.zeros((n_envs, n), dtype=np.bool_)
+    cand = np.empty((n, 2))
+    blocked = np.zeros(n, dtype=np.bool_)
+    clash = np.zeros(n, dtype=np.bool_)
+    for e in range(n_envs):
+        for _ in range(substeps):
+            for i in range(n):
+                mid = heading[e, i] + 0.5 * w[e, i] * dt
+                heading[e, i] = heading[e, i] + w[e, i] * dt
+                cand[i, 0], cand[i, 1] = pos[e, i, 0], pos[e, i, 1]
+                blocked[i] = False
+                if not stopped[e, i]:
+                    step = v[e, i] * dt
+                    x = pos[e, i, 0] + step * np.cos(mid)
+                    y = pos[e, i, 1] + step * np.sin(mid)
+                    c = int(np.floor((x - origin_x) / resolution))
+                    r = int(np.floor((y - origin_y) / resolution))
+                    if 0 <= r < h and 0 <= c < w_cells and navigable[r, c]:
+                        cand[i, 0], cand[i, 1] = x, y
+                    else:
+                        blocked[i] = True
+            for _ in range(n):
+                any_clash = False
+                for i in range(n):
+                    clash[i] = False
+                    if stopped[e, i] or blocked[i]:
+                        continue
+                    for j in range(n):
+                        if j == i:
+                            continue
+                        dx, dy = cand[i, 0] - cand[j, 0], cand[i, 1] - cand[j, 1]
+                        new = np.sqrt(dx * dx + dy * dy)
+                        dx, dy = pos[e, i, 0] - cand[j, 0], pos[e, i, 1] - cand[j, 1]
+                        if new < limit and new < np.sqrt(dx * dx + dy * dy):
+                            clash[i] = True
+                            any_clash = True
+                            break
+                if not any_clash:
+                    break
+                for i in range(n):
+                    if clash[i]:
+                        blocked[i] = True
+                        cand[i, 0], cand[i, 1] = pos[e, i, 0], pos[e, i, 1]
+            for i in range(n):
+                if not (blocked[i] or stopped[e, i]):
+                    distance[e, i] += abs(v[e, i]) * dt
+                collided[e, i] |= blocked[i]
+                stopped[e, i] |= blocked[i]
+                pos[e, i, 0], pos[e, i, 1] = cand[i, 0], cand[i, 1]
+    return pos, heading, distance, collided
