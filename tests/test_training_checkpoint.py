@@ -151,3 +151,40 @@ def test_stochastic_evaluation_samples_reproducibly_and_leaves_torch_rng_alone(
         draws.append(a)
     np.testing.assert_array_equal(draws[0], draws[1])
     assert not np.array_equal(draws[0], mean)
+
+
+def test_init_from_a_silent_checkpoint_starts_a_talking_run_with_its_policy(tmp_path):
+    """il / no-com → ours: the message inputs start at zero, so the first policy agrees."""
+    from collavn.training.distributed import DistInfo
+    from collavn.training.trainer import build_run, checkpoint_payload
+
+    silent = build_run(tiny_config("no-com", out=str(tmp_path / "a")), DistInfo(),
+                       torch.device("cpu"))
+    with torch.no_grad():  # non-zero weights everywhere the message could hide
+        for p in silent.model.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    source = save_checkpoint(tmp_path / "silent.pt", checkpoint_payload(silent))
+    cfg = tiny_config("ours", out=str(tmp_path / "b")).with_run(init_from=str(source))
+    talking = build_run(cfg, DistInfo(), torch.device("cpu"))
+    tower = talking.model.towers[0]
+    assert tower.comm is not None
+    msg = tower.comm.output_size
+    cut = tower.embed_size + tower.map_size
+    assert not tower.actor_core.weight_ih[:, cut:cut + msg].any()
+    torch.manual_seed(0)
+    e, n = 2, 2
+    obs = {"panorama": torch.randint(0, 255, (e, n, 3, 16, 64), dtype=torch.uint8),
+           "goal": torch.randint(0, 255, (e, n, 3, 16, 16), dtype=torch.uint8),
+           "pose_delta": torch.zeros(e, n, 3), "active": torch.ones(e, n, dtype=torch.bool)}
+    start = torch.ones(e, n, dtype=torch.bool)
+    for model in (silent.model, talking.model):
+        model.eval()
+    a = silent.model(obs, silent.model.initial_state(e, n), start)
+    b = talking.model(obs, talking.model.initial_state(e, n), start)
+    assert b.message.omega.abs().sum() > 0  # the message is there, with zero weight
+    torch.testing.assert_close(b.dist.mean, a.dist.mean, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(b.value, a.value, rtol=1e-5, atol=1e-6)
+    other = tiny_config("ours", out=str(tmp_path / "c")).with_run(init_from=str(source))
+    other = replace(other, model=replace(other.model, hidden_size=64))
+    with pytest.raises(CheckpointError, match="hidden_size"):
+        build_run(other, DistInfo(), torch.device("cpu"))

@@ -73,6 +73,7 @@ class AgentTower(FramePerception):
         emb, goal = self.embed_size, self.goal_size
         map_dim = cfg.map.embed_dim + (3 if cfg.odometry_input else 0)
         self.odometry_input = cfg.odometry_input
+        self.map_size = map_dim
         self.map_builder = MapBuilder(cfg.map, cfg.panorama_shape)
         self.map_encoder = MapEncoder(cfg.map)
         self.comm = (None if cfg.comm.variant == "none"

@@ -36,7 +36,7 @@ from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv
 from collavn.errors import CheckpointError
 from collavn.files import prepare_output_dir
-from collavn.models.policy import ActorCritic
+from collavn.models.policy import ActorCritic, AgentTower
 from collavn.models.state import AgentState
 from collavn.perception.encoder import EncoderFile, install_encoder, load_encoder
 from collavn.policies import OraclePolicy
@@ -169,14 +169,48 @@ def scene_window(scenes: list[Scene], num_envs: int, k: int) -> list[Scene]:
 
 
 def initialise_from(model: ActorCritic, cfg: TrainConfig, path: str) -> None:
-    """Load a checkpoint's model weights into ``model``; refuse another model config."""
+    """Load a checkpoint's model weights into ``model``; refuse another model config.
+
+    One difference is allowed: a checkpoint without communication (``il``, ``no-com``)
+    may start a run with it (``ours``, ``no-mem``). The message enters the GRU cores
+    through new input columns that start at zero, so the run's first policy is the
+    checkpoint's; the communication weights start fresh and learn from there.
+    """
     payload = load_checkpoint(path)
     saved = saved_config(payload, path).to_dict()["model"]
     diffs = differences(saved, cfg.to_dict()["model"], "model.")
-    if diffs:
+    adds_messages = (saved["comm"]["variant"] == "none" != cfg.model.comm.variant
+                     and all(d.startswith("model.comm.") for d in diffs))
+    if diffs and not adds_messages:
         raise CheckpointError(f"--init-from {path}: its model config differs from this "
                               f"run's ({'; '.join(diffs[:6])}); use the same preset")
-    model.load_state_dict(payload["model"])
+    state = payload["model"]
+    if adds_messages:
+        state = with_message_inputs(state, model)
+    missing, unexpected = model.load_state_dict(state, strict=not adds_messages)
+    if unexpected or any(".comm." not in k for k in missing):
+        raise CheckpointError(f"--init-from {path}: weights do not fit this model "
+                              f"(missing {missing[:3]}, unexpected {unexpected[:3]})")
+
+
+def with_message_inputs(state: dict[str, torch.Tensor], model: ActorCritic
+                        ) -> dict[str, torch.Tensor]:
+    """A silent model's weights with zero-weight message inputs for ``model``'s cores.
+
+    The actor core reads ``[o, s, ω, g]`` and the critic core ``[o, ω, (s, g)]``
+    (:meth:`~collavn.models.policy.AgentTower.core_inputs`): ω's columns are inserted
+    as zeros, every other column keeps its weight.
+    """
+    out = dict(state)
+    for i, tower in enumerate(model.towers):
+        assert isinstance(tower, AgentTower) and tower.comm is not None
+        msg, emb = tower.comm.output_size, tower.embed_size
+        for core, at in (("actor_core", emb + tower.map_size), ("critic_core", emb)):
+            key = f"towers.{i}.{core}.weight_ih"
+            old = state[key]
+            out[key] = torch.cat([old[:, :at], old.new_zeros(old.shape[0], msg),
+                                  old[:, at:]], dim=1)
+    return out
 
 
 def sync_point(run: Run) -> None:
