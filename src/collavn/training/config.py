@@ -214,7 +214,9 @@ class RunConfig:
     """Show a progress bar (rank 0)."""
     init_from: str = ""
     """Start from the model weights of this checkpoint (e.g. an ``il`` run's, to
-    fine-tune it with PPO); its model config must match. Optimizers start fresh."""
+    fine-tune it with PPO); its model config must match, except that a checkpoint
+    without communication may start ``ours`` / ``no-mem`` (message inputs start at zero
+    weight: the first policy is the checkpoint's). Optimizers start fresh."""
 
     encoder: str = ""
     """A pretrained frame perception (``collavn pretrain`` → ``encoder.pt``), frozen: it
