@@ -12,11 +12,14 @@ per agent and step, the flags that cut the advantage recursion:
 * ``active[t]`` — the agent was still running when it acted; steps of agents that
   already finished (waiting for the others) carry no learning signal and are masked.
 
-Stored features: ``percepts`` holds, per step, what the networks that no policy
-gradient can change made of the images (``ActorCritic.stored_percepts``: a frozen
-pretrained encoder's ``o, g``; the detached local-map prediction). ``obs`` then keeps
-only what the update still reads (``ActorCritic.replay_keys``) — no images at all when
-both are stored — and PPO epochs and imitation updates never run those CNNs again.
+Stored features: ``percepts`` holds, per step, what no policy gradient can change
+(``ActorCritic.stored_percepts``: a frozen pretrained encoder's ``o, g``; with a
+detached map predictor its trunk features and the map tracking — the egocentric window
+of the map channels, the seen fraction of each feature cell, the pose). ``obs`` then
+keeps only what the update still reads (``ActorCritic.replay_keys``) — no images at
+all when both are stored — and PPO epochs and imitation updates never run those CNNs
+or the map registration again: they run the map encoder once over all steps and step
+only the communication and the GRU cores through time.
 """
 
 from __future__ import annotations
