@@ -28,6 +28,7 @@ from collavn.metrics import MetricsTable, metrics_table
 from collavn.policies import make_policy
 from collavn.scenes import load_scene
 from collavn.tasks import TaskName
+from collavn.threads import apply_threads
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,9 @@ class EvalConfig:
     episode (with the episode's id)."""
     device: str = "cpu"
     """Torch device for checkpoint policies."""
+    torch_threads: int = 0
+    """torch / Numba threads; 0 = automatic: one each, as in ``train`` (two processes
+    can share two cores)."""
     stochastic: bool = False
     """Checkpoints only: sample actions from the policy's Gaussian (seeded by ``--seed``)
     instead of taking its mean."""
@@ -68,12 +72,14 @@ class EvalConfig:
         check_count("--num-envs", self.num_envs)
         check_count("--seed", self.seed, 0)
         check_count("--keep-trajectories", self.keep_trajectories, 0)
+        check_count("--torch-threads", self.torch_threads, 0)
 
 
 def run_evaluation(cfg: EvalConfig, dataset: Dataset) -> EvaluationResult:
     """Evaluate ``cfg.policy`` on every file of ``dataset``; records in file order."""
     from rich.progress import Progress
 
+    apply_threads(cfg.torch_threads)
     total = EvaluationResult()
     with Progress(disable=not cfg.progress, transient=True) as bar:
         selected = {name: [e for e in content.episodes
