@@ -147,7 +147,8 @@ class ImitationConfig:
     """Behaviour cloning of the shortest-path oracle (method ``il``)."""
 
     dagger: bool = False
-    """DAgger: let the learner drive with probability ``1 - β`` (else pure BC)."""
+    """DAgger: let the learner drive (with its mean action, the policy that is evaluated)
+    with probability ``1 - β`` (else pure BC)."""
     beta_decay: float = 0.95
     """β = ``beta_decay ** iteration`` when ``dagger`` (β = 1: the expert always drives)."""
     beta_min: float = 0.1

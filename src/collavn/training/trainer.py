@@ -248,7 +248,9 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     start = time.perf_counter()
     for t in range(cfg.ppo.rollout_steps):
         start_t = episode_start(run.obs, device)
-        out = model.act(obs_t, run.state, start_t)
+        # DAgger's learner drives with its mean action, the policy that is evaluated: the
+        # expert then labels the states that action reaches (pressed against a wall, …)
+        out = model.act(obs_t, run.state, start_t, deterministic=run.expert is not None)
         if rollout is None:  # stores only what the update reads (see Rollout)
             rollout = Rollout.allocate(
                 cfg.ppo.rollout_steps, {k: obs_t[k] for k in model.replay_keys()},
