@@ -223,8 +223,9 @@ class Unrolled:
 
     Attributes:
         mean: ``(T, E, N, 2)``; log_std: ``(T, E, N, 2)``; value: ``(T, E, N)``.
-        state: The state after the last step (its ``grid`` is the one before the first
-            step when the map windows came from stored percepts: nothing re-tracked it).
+        state: The state after the last step (its ``grid`` and ``pose`` are the ones
+            before the first step when the map tracking came from stored percepts:
+            nothing re-tracked them; :meth:`ActorCritic.evaluate_actions` drops it).
         percepts: Every percept of every step, ``(T, E, N, ...)``.
         messages: The communication round of each step.
     """
@@ -387,8 +388,6 @@ class ActorCritic(nn.Module):
                 pose = carry(active[t], pose_t, cleared(pose, t))
             for key, parts in zip(MAP_TRACK, zip(*tracked, strict=True), strict=True):
                 p[key] = torch.stack(parts)
-        else:
-            pose = carry(active[-1], p["map_pose"][-1], pose)  # grid: see Unrolled.state
         visual = self._over_steps(AgentTower.map_visual, p["map_hidden"])[0]
         features, blended = state.features, []
         for t in range(steps):
