@@ -3,6 +3,7 @@ import torch
 
 from collavn.models import ActorCritic, AgentState, CommConfig, MapConfig, ModelConfig, map_loss
 from collavn.models.mapping import blend_features
+from collavn.models.policy import gru_step
 
 torch.set_num_threads(1)
 
@@ -184,3 +185,12 @@ def test_odometry_input_reaches_the_actor_but_not_at_an_episode_start():
     start = torch.zeros(1, 2, dtype=torch.bool)
     out = model(dict(obs, pose_delta=delta[None]), state, start)
     assert torch.isfinite(out.dist.mean).all()
+
+
+def test_gru_step_is_pytorchs_gru_cell():
+    """The replay splits a GRU cell into W_ih·x (all steps at once) and the recurrence."""
+    torch.manual_seed(0)
+    cell = torch.nn.GRUCell(7, 5)
+    x, h = torch.randn(9, 7), torch.randn(9, 5)
+    gates_in = torch.nn.functional.linear(x, cell.weight_ih, cell.bias_ih)
+    torch.testing.assert_close(gru_step(cell, gates_in, h), cell(x, h), rtol=1e-6, atol=1e-6)

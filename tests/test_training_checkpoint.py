@@ -169,7 +169,7 @@ def test_init_from_a_silent_checkpoint_starts_a_talking_run_with_its_policy(tmp_
     tower = talking.model.towers[0]
     assert tower.comm is not None
     msg = tower.comm.output_size
-    cut = tower.embed_size + tower.map_size
+    cut = tower.embed_size + tower.map_vector_size
     assert not tower.actor_core.weight_ih[:, cut:cut + msg].any()
     torch.manual_seed(0)
     e, n = 2, 2

@@ -67,7 +67,7 @@ class ExperimentConfig:
     device: str = "cpu"
     """Torch device of training and evaluation."""
     torch_threads: int = 0
-    """Torch threads of the training runs (0 = torch's default)."""
+    """Torch threads of the training runs (0 = automatic: one per run, see ``train``)."""
     progress: bool = True
     """Show progress bars."""
     test_scenes: tuple[str, ...] = ()

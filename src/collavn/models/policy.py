@@ -52,8 +52,6 @@ ACTION_DIM = 2
 Percepts = dict[str, Tensor]
 #: Outputs of the frame perception (panorama and goal embeddings).
 FRAME_PERCEPTS = ("o", "g")
-#: Outputs of the local-map predictor (logits of the local patch and its trunk features).
-MAP_PERCEPTS = ("map_logits", "map_hidden")
 #: What the map tracking makes of a step: the egocentric window of the map channels
 #: ``(4, e, e)``, the fraction of each feature cell seen ``(1, G, G)`` and the pose ``(3,)``.
 #: With ``MapConfig.detach`` no parameter is on their path, so a rollout stores them and
@@ -73,7 +71,7 @@ class AgentTower(FramePerception):
         emb, goal = self.embed_size, self.goal_size
         map_dim = cfg.map.embed_dim + (3 if cfg.odometry_input else 0)
         self.odometry_input = cfg.odometry_input
-        self.map_size = map_dim
+        self.map_vector_size = map_dim  # S fed to the cores: map embedding + odometry
         self.map_builder = MapBuilder(cfg.map, cfg.panorama_shape)
         self.map_encoder = MapEncoder(cfg.map)
         self.comm = (None if cfg.comm.variant == "none"
@@ -380,12 +378,12 @@ class ActorCritic(nn.Module):
         if not all(k in p for k in MAP_TRACK):
             tracked: list[tuple[Tensor, ...]] = []
             for t in range(steps):
+                grid, pose = cleared(grid, t), cleared(pose, t)
                 grid_t, seen, pose_t, window = self._dispatch(
-                    AgentTower.track_map, p["map_logits"][t], delta[t], cleared(grid, t),
-                    cleared(pose, t), starts[t])
+                    AgentTower.track_map, p["map_logits"][t], delta[t], grid, pose,
+                    starts[t])
                 tracked.append((window, seen, pose_t))
-                grid = carry(active[t], grid_t, cleared(grid, t))
-                pose = carry(active[t], pose_t, cleared(pose, t))
+                grid, pose = carry(active[t], grid_t, grid), carry(active[t], pose_t, pose)
             for key, parts in zip(MAP_TRACK, zip(*tracked, strict=True), strict=True):
                 p[key] = torch.stack(parts)
         visual = self._over_steps(AgentTower.map_visual, p["map_hidden"])[0]

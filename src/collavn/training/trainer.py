@@ -205,7 +205,7 @@ def with_message_inputs(state: dict[str, torch.Tensor], model: ActorCritic
     for i, tower in enumerate(model.towers):
         assert isinstance(tower, AgentTower) and tower.comm is not None
         msg, emb = tower.comm.output_size, tower.embed_size
-        for core, at in (("actor_core", emb + tower.map_size), ("critic_core", emb)):
+        for core, at in (("actor_core", emb + tower.map_vector_size), ("critic_core", emb)):
             key = f"towers.{i}.{core}.weight_ih"
             old = state[key]
             out[key] = torch.cat([old[:, :at], old.new_zeros(old.shape[0], msg),
