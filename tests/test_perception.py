@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from collavn.errors import CheckpointError
+from collavn.errors import CheckpointError, ConfigError
+from collavn.models.config import ReadoutConfig
 from collavn.models.frames import FRAME_MODULES, FramePerception
 from collavn.models.policy import MAP_TRACK
 from collavn.perception.config import PerceptionConfig, PretrainConfig
@@ -119,7 +120,8 @@ def test_a_frozen_encoder_runs_once_per_step_and_stays_bit_identical(tmp_path, m
     saved = frames.frame_state_dict()
     assert all(torch.equal(v, tower.state_dict()[k]) for k, v in saved.items())
     trained = {id(p) for g in run.optimizer.param_groups for p in g["params"]}
-    frozen = [p for name in FRAME_MODULES for p in getattr(tower, name).parameters()]
+    assert tower.readout is not None  # the pretrained heads are frozen with the encoder
+    frozen = [p for m in tower.frame_modules() for p in m.parameters()]
     assert frozen and not any(p.requires_grad or id(p) in trained for p in frozen)
     sync_point(run)
     rollout, _ = collect_rollout(run)
@@ -158,3 +160,44 @@ def test_a_run_refuses_an_encoder_made_for_other_image_sizes(tmp_path):
     with pytest.raises(CheckpointError, match="checksum"):
         build_run(tiny_config("no-com").with_run(encoder=str(path), encoder_sha256="ab" * 32),
                   DistInfo(), torch.device("cpu"))
+    # an encoder pretrained without the readout heads cannot feed a model that reads them
+    path, _ = _encoder_file(tmp_path, dataclasses.replace(TINY_MODEL, readout=ReadoutConfig()))
+    with pytest.raises(CheckpointError, match=r"readout: encoder null vs run \{\"bins\": 8"):
+        build_run(tiny_config("no-com").with_run(encoder=str(path)), DistInfo(),
+                  torch.device("cpu"))
+
+
+def test_the_pretrained_heads_become_the_policy_readout(l_corridor, tmp_path):
+    torch.set_num_threads(1)
+    cfg, trainer = _tiny_pretrain(l_corridor)
+    assert trainer.heads is trainer.frames.readout  # the model's own heads are trained
+    for _ in range(3):
+        trainer.step()
+    trainer.frames.eval()
+    path = save_encoder(tmp_path / "encoder.pt", trainer.frames,
+                        encoder_spec(cfg.model, cfg.env.camera_height), {}, {}, 3)
+    assert any(k.startswith("readout.") for k in load_encoder(path).state_dict)
+    run = build_run(tiny_config("il").with_run(encoder=str(path)), DistInfo(),
+                    torch.device("cpu"))
+    tower = run.model.towers[0]
+    batch = sample_batch(trainer.val, 4, cfg.perception, np.random.default_rng(0),
+                         augment=False)
+    pan, goal = torch.as_tensor(batch["panorama"]), torch.as_tensor(batch["goal"])
+    k = cfg.perception.bins
+    with torch.no_grad():
+        _, g = tower.see(pan, goal)
+        pred = trainer.heads(*trainer.frames.see_pair(pan, goal))
+    assert g.shape == (4, tower.pair_goal_size + 3 * k + 1) and tower.goal_size == g.shape[1]
+    readout = g[:, tower.pair_goal_size:]
+    torch.testing.assert_close(readout[:, :k], pred["path_bearing"].softmax(-1))
+    torch.testing.assert_close(readout[:, k:2 * k], pred["goal_bearing"].softmax(-1))
+    torch.testing.assert_close(readout[:, 2 * k], pred["distance"])
+    torch.testing.assert_close(readout[:, 2 * k + 1:], pred["free_space"])
+    torch.testing.assert_close(readout[:, :k].sum(-1), torch.ones(4))
+
+
+def test_pretraining_refuses_heads_of_another_size_than_the_models_readout():
+    env = tiny_config().env
+    with pytest.raises(ConfigError, match=r"model.readout \(bins 8, hidden 32\)"):
+        PretrainConfig(env=env, model=TINY_MODEL, perception=PerceptionConfig(bins=16,
+                                                                              hidden=32))

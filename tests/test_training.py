@@ -152,6 +152,25 @@ def test_ppo_loss_goes_down_on_a_fixed_batch():
     assert np.isfinite(stats["approx_kl"])
 
 
+def test_target_kl_stops_the_epochs_once_the_policy_has_moved():
+    cfg, run, rollout = _fixed_batch("no-com")
+    adv, ret = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
+                           rollout.truncated, rollout.last_value, 0.99, 0.95)
+    for group in run.optimizer.param_groups:
+        group["lr"] = 1e-2
+    start = {n: p.detach().clone() for n, p in run.model.named_parameters()}
+    full = ppo_update(run.model, run.optimizer, rollout, adv, ret,
+                      dataclasses.replace(cfg.ppo, update_epochs=6), run.generator)
+    assert full.epochs == 6 and full.approx_kl > 1e-6
+    run.model.load_state_dict(start, strict=False)
+    stopped = ppo_update(run.model, run.optimizer, rollout, adv, ret,
+                         dataclasses.replace(cfg.ppo, update_epochs=6, target_kl=1e-9),
+                         run.generator)
+    assert stopped.epochs == 1  # the first epoch's KL already exceeds a tiny target
+    with pytest.raises(ConfigError, match=r"--ppo\.target-kl must be a finite number"):
+        dataclasses.replace(cfg.ppo, target_kl=-1.0)
+
+
 @pytest.mark.parametrize("method", ["ours", "no-mem"])
 def test_ppo_scores_a_rollout_with_the_model_that_collected_it(method):
     from collavn.training.map_training import map_parameters

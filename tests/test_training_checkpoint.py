@@ -13,6 +13,7 @@ import torch
 
 from collavn.errors import CheckpointError
 from collavn.policies.checkpoint import load_checkpoint, load_policy, save_checkpoint
+from collavn.training.checkpoint import saved_config
 from collavn.training.trainer import CHECKPOINT, train
 from training_fixtures import tiny_config
 
@@ -188,3 +189,21 @@ def test_init_from_a_silent_checkpoint_starts_a_talking_run_with_its_policy(tmp_
     other = replace(other, model=replace(other.model, hidden_size=64))
     with pytest.raises(CheckpointError, match="hidden_size"):
         build_run(other, DistInfo(), torch.device("cpu"))
+
+
+
+def test_a_checkpoint_from_before_the_readout_loads_with_it_off(tmp_path):
+    from collavn.models.config import ReadoutConfig
+    from collavn.models.policy import ActorCritic
+
+    cfg = tiny_config("no-com")
+    model_cfg = replace(cfg.model, readout=ReadoutConfig())
+    config = replace(cfg, model=model_cfg).to_dict()
+    del config["model"]["readout"]  # written before these fields existed
+    del config["ppo"]["target_kl"]
+    save_checkpoint(tmp_path / "old.pt", {"config": config, "update": 0,
+                                          "model": ActorCritic(model_cfg).state_dict()})
+    policy, _ = load_policy(tmp_path / "old.pt")
+    assert policy.model.cfg.readout == ReadoutConfig(enabled=False)
+    assert policy.model.towers[0].readout is None
+    assert saved_config(load_checkpoint(tmp_path / "old.pt"), "old.pt").ppo.target_kl == 0.0

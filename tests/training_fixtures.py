@@ -6,7 +6,7 @@ from dataclasses import replace
 from typing import Any
 
 from collavn.envs.config import EnvConfig
-from collavn.models.config import CommConfig, MapConfig, ModelConfig
+from collavn.models.config import CommConfig, MapConfig, ModelConfig, ReadoutConfig
 from collavn.training.config import MapTrainConfig, PPOConfig, RunConfig, TrainConfig
 from collavn.training.presets import preset_config
 
@@ -14,7 +14,8 @@ TINY_MODEL = ModelConfig.cpu(
     embed_dim=32, hidden_size=32, critic_hidden_size=16,
     map=MapConfig(size=32, resolution=0.2, local_size=16, feature_channels=4,
                   feature_size=4, hidden=32, encoder_size=16, embed_dim=16),
-    comm=CommConfig(query_dim=8, key_dim=8, value_dim=16, memory_slots=8))
+    comm=CommConfig(query_dim=8, key_dim=8, value_dim=16, memory_slots=8),
+    readout=ReadoutConfig(enabled=True, bins=8, hidden=32))
 
 
 def tiny_config(method: str = "ours", out: str = "runs/tiny", rollout_steps: int = 4,

@@ -128,6 +128,38 @@ class MatchConfig:
 
 
 @dataclass(frozen=True)
+class ReadoutConfig:
+    """Perception readout (:class:`collavn.models.readout.PerceptionReadout`; not in the paper).
+
+    The heads that ``collavn pretrain`` trains on simulator labels stay in the model and
+    their predictions join the goal embedding: where the shortest path and the goal lie
+    (a distribution over ``bins`` panorama sectors each), the geodesic distance and the
+    free space per sector. A policy then reads "turn towards sector k" nearly linearly
+    instead of rediscovering it from two embeddings.
+
+    Attributes:
+        enabled: Append the readout to the goal embedding.
+        bins: Azimuth sectors (must divide the panorama width; pretraining's
+            ``perception.bins`` must agree).
+        hidden: Width of the heads' hidden layer (pretraining's ``perception.hidden``).
+    """
+
+    enabled: bool = False
+    bins: int = 16
+    hidden: int = 256
+
+    def __post_init__(self) -> None:
+        if self.bins < 1 or self.hidden < 1:
+            raise ValueError(f"readout bins and hidden must be ≥ 1, got bins={self.bins}, "
+                             f"hidden={self.hidden}")
+
+    @property
+    def size(self) -> int:
+        """Width of the readout vector: two bearing distributions, distance, free space."""
+        return 3 * self.bins + 1 if self.enabled else 0
+
+
+@dataclass(frozen=True)
 class ModelConfig:
     """The whole agent: encoders → map → communication → GRU core → actor / critic.
 
@@ -152,6 +184,8 @@ class ModelConfig:
         map: The map module.
         comm: The communication module.
         goal_match: Goal matching (off in the paper's model, on in ``cpu``).
+        readout: The pretraining heads' predictions as inputs (off in the paper's
+            model, on in ``cpu``).
     """
 
     encoder: EncoderKind = "resnet18"
@@ -169,6 +203,7 @@ class ModelConfig:
     map: MapConfig = field(default_factory=MapConfig)
     comm: CommConfig = field(default_factory=CommConfig)
     goal_match: MatchConfig = field(default_factory=MatchConfig)
+    readout: ReadoutConfig = field(default_factory=ReadoutConfig)
 
     @classmethod
     def paper(cls, **overrides: object) -> ModelConfig:
@@ -179,7 +214,8 @@ class ModelConfig:
     def cpu(cls, **overrides: object) -> ModelConfig:
         """Laptop-CPU sizes (small CNN, 3×32×128 panoramas, 96×96 map at 20 cm).
 
-        Also on: goal matching, odometry input, a critic that sees the goal and the map.
+        Also on: goal matching, the perception readout, odometry input, a critic that
+        sees the goal and the map.
         """
         base: dict[str, object] = dict(
             encoder="small", embed_dim=256, panorama_shape=(3, 32, 128),
@@ -188,7 +224,7 @@ class ModelConfig:
                           feature_size=6, hidden=256, encoder_size=32, embed_dim=128),
             comm=CommConfig(query_dim=64, key_dim=64, value_dim=256),
             goal_match=MatchConfig(enabled=True), critic_full_input=True,
-            odometry_input=True,
+            odometry_input=True, readout=ReadoutConfig(enabled=True),
         )
         base.update(overrides)
         return cls(**base)  # type: ignore[arg-type]

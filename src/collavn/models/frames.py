@@ -22,9 +22,10 @@ from torch import Tensor, nn
 from collavn.models.config import ModelConfig
 from collavn.models.encoders import make_encoder
 from collavn.models.matching import GoalMatcher
+from collavn.models.readout import PerceptionReadout
 
 #: Submodules of :class:`FramePerception` (prefixes of its state-dict keys).
-FRAME_MODULES = ("panorama_encoder", "goal_encoder", "goal_matcher")
+FRAME_MODULES = ("panorama_encoder", "goal_encoder", "goal_matcher", "readout")
 
 
 def frame_spec(cfg: ModelConfig) -> dict[str, Any]:
@@ -37,11 +38,13 @@ def frame_spec(cfg: ModelConfig) -> dict[str, Any]:
             "goal_match": {"enabled": cfg.goal_match.enabled,
                            "channels": cfg.goal_match.channels,
                            "scales": list(cfg.goal_match.scales),
-                           "output_size": cfg.goal_match.output_size}}
+                           "output_size": cfg.goal_match.output_size},
+            **({"readout": {"bins": cfg.readout.bins, "hidden": cfg.readout.hidden}}
+               if cfg.readout.enabled else {})}
 
 
 class FramePerception(nn.Module):
-    """Panorama encoder, goal encoder and (optional) goal matcher of one agent."""
+    """Panorama encoder, goal encoder, (optional) goal matcher and perception readout."""
 
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
@@ -52,11 +55,27 @@ class FramePerception(nn.Module):
         self.goal_matcher = (GoalMatcher(cfg.goal_match, cfg.panorama_shape, cfg.goal_shape)
                              if cfg.goal_match.enabled else None)
         self.embed_size = emb
-        self.goal_size = emb + (0 if self.goal_matcher is None
-                                else self.goal_matcher.output_size)
+        #: Width of ``g`` before the readout (what the readout's pair head reads).
+        self.pair_goal_size = emb + (0 if self.goal_matcher is None
+                                     else self.goal_matcher.output_size)
+        r = cfg.readout
+        self.readout = (PerceptionReadout(emb, self.pair_goal_size, r.bins, r.hidden)
+                        if r.enabled else None)
+        self.goal_size = self.pair_goal_size + r.size
 
     def see(self, panorama: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
-        """``(B, 3, H, W)``, ``(B, 3, Hg, Wg)`` uint8 → o ``(B, embed)``, g ``(B, goal_size)``."""
+        """``(B, 3, H, W)``, ``(B, 3, Hg, Wg)`` uint8 → o ``(B, embed)``, g ``(B, goal_size)``.
+
+        ``g`` is the goal embedding, then the match vector (goal matching), then the
+        readout's features (perception readout).
+        """
+        o, g = self.see_pair(panorama, goal)
+        if self.readout is not None:
+            g = torch.cat([g, self.readout.features(o, g)], dim=1)
+        return o, g
+
+    def see_pair(self, panorama: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
+        """``o`` and ``g`` without the readout's features (what the readout reads)."""
         o = self.panorama_encoder(panorama)
         g = self.goal_encoder(goal)
         if self.goal_matcher is not None:

@@ -100,6 +100,11 @@ class PretrainConfig:
         if self.env.panorama_width % self.perception.bins:
             raise ConfigError(f"panorama width {self.env.panorama_width} is not a multiple "
                               f"of perception.bins {self.perception.bins}")
+        r, p = self.model.readout, self.perception
+        if r.enabled and (r.bins, r.hidden) != (p.bins, p.hidden):
+            raise ConfigError(f"model.readout (bins {r.bins}, hidden {r.hidden}) is trained "
+                              f"here as the label heads: set perception.bins/hidden to the "
+                              f"same (now {p.bins}, {p.hidden})")
         model = replace(self.model,
                         panorama_shape=(3, self.env.panorama_height, self.env.panorama_width),
                         goal_shape=(3, self.env.goal_size, self.env.goal_size))

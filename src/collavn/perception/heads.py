@@ -1,8 +1,8 @@
-"""Pretraining heads on top of the frame perception's ``o`` and ``g`` (discarded after).
+"""Targets, losses and accuracies of the pretraining heads.
 
-The heads are deliberately shallow — linear on ``o`` for free space, one hidden layer on
-``[o, g]`` for the pair labels — so what they read must be nearly linear in the
-embeddings, which is how the policy's GRU reads them.
+The heads are :class:`~collavn.models.readout.PerceptionReadout` on top of the frame
+perception's ``o`` and ``g``: the model's own readout when ``model.readout`` is on (the
+encoder file then carries them into training), else a separate one discarded after.
 
 Losses: cross-entropy over ``bins`` sectors for the path and goal bearings, smooth-L1 on
 ``log(1 + metres)`` for the geodesic distance and per-sector free space. Held-out
@@ -16,28 +16,11 @@ from collections.abc import Mapping
 
 import torch
 import torch.nn.functional as F
-from torch import Tensor, nn
+from torch import Tensor
 
-#: The labels, in the order they are reported.
-LABELS = ("path_bearing", "goal_bearing", "distance", "free_space")
+from collavn.models.readout import LABELS
 
-
-class PerceptionHeads(nn.Module):
-    """Predict the labels of :mod:`collavn.perception.labels` from ``o`` and ``g``."""
-
-    def __init__(self, embed_size: int, goal_size: int, bins: int, hidden: int) -> None:
-        super().__init__()
-        self.free = nn.Linear(embed_size, bins)
-        self.pair = nn.Sequential(nn.Linear(embed_size + goal_size, hidden), nn.ReLU())
-        self.path = nn.Linear(hidden, bins)
-        self.goal = nn.Linear(hidden, bins)
-        self.distance = nn.Linear(hidden, 1)
-
-    def forward(self, o: Tensor, g: Tensor) -> dict[str, Tensor]:
-        """Logits ``(B, K)`` of both bearings, log-distance ``(B,)``, log-free ``(B, K)``."""
-        h = self.pair(torch.cat([o, g], dim=1))
-        return {"path_bearing": self.path(h), "goal_bearing": self.goal(h),
-                "distance": self.distance(h).squeeze(-1), "free_space": self.free(o)}
+__all__ = ["LABELS", "accuracies", "losses", "targets"]
 
 
 def targets(batch: Mapping[str, Tensor], bins: int, max_distance: float) -> dict[str, Tensor]:

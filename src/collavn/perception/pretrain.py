@@ -27,10 +27,11 @@ import numpy as np
 import torch
 
 from collavn.models.frames import FramePerception
+from collavn.models.readout import PerceptionReadout
 from collavn.perception.config import PretrainConfig
 from collavn.perception.encoder import encoder_spec, save_encoder
 from collavn.perception.frames import FrameSet, render_frames, sample_batch
-from collavn.perception.heads import LABELS, PerceptionHeads, accuracies, losses, targets
+from collavn.perception.heads import LABELS, accuracies, losses, targets
 from collavn.scenes import load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.threads import apply_threads
@@ -55,9 +56,11 @@ class Pretrainer:
         torch.manual_seed(cfg.seed)
         self.frames = FramePerception(cfg.model)
         p = cfg.perception
-        self.heads = PerceptionHeads(self.frames.embed_size, self.frames.goal_size, p.bins,
-                                     p.hidden)
-        params = [*self.frames.parameters(), *self.heads.parameters()]
+        # The model's own readout if it has one (saved with the encoder), else heads
+        # that are discarded after.
+        self.heads = self.frames.readout or PerceptionReadout(
+            self.frames.embed_size, self.frames.pair_goal_size, p.bins, p.hidden)
+        params = list(dict.fromkeys([*self.frames.parameters(), *self.heads.parameters()]))
         self.optimizer = torch.optim.Adam(params, lr=p.lr)
         self.rng = np.random.default_rng(cfg.seed + 1)
 
@@ -65,7 +68,7 @@ class Pretrainer:
         """Total loss of a batch and its parts."""
         p = self.cfg.perception
         t = {k: torch.as_tensor(v) for k, v in batch.items()}
-        o, g = self.frames.see(t["panorama"], t["goal"])
+        o, g = self.frames.see_pair(t["panorama"], t["goal"])
         parts = losses(self.heads(o, g), targets(t, p.bins, p.max_distance))
         total = torch.stack(list(parts.values())).sum()
         return total, {k: float(v.detach()) for k, v in parts.items()}
@@ -93,7 +96,7 @@ class Pretrainer:
         for _ in range(max(1, pairs // p.batch_size)):
             batch = sample_batch(self.val, p.batch_size, p, rng, augment=False)
             t = {k: torch.as_tensor(v) for k, v in batch.items()}
-            o, g = self.frames.see(t["panorama"], t["goal"])
+            o, g = self.frames.see_pair(t["panorama"], t["goal"])
             pred, target = self.heads(o, g), targets(t, p.bins, p.max_distance)
             loss.append(float(torch.stack(list(losses(pred, target).values())).sum()))
             for k, v in accuracies(pred, target).items():

@@ -18,6 +18,7 @@ load.
 
 from __future__ import annotations
 
+import copy
 import io
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,9 @@ FORMAT_VERSION = 3
 READABLE_FORMATS = (2, 3)
 #: First word of a checkpoint file's header line.
 MAGIC = b"collavn-checkpoint"
+
+#: Envs per forward pass of :class:`CheckpointPolicy` (a fixed batch size: see there).
+BLOCK_ENVS = 8
 
 #: Why older formats are refused.
 _OLD_FORMATS = {1: "written before the configuration tree and the per-pair communication "
@@ -94,7 +98,32 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
         raise CheckpointError(f"{path} is not a collavn training checkpoint "
                               f"(format {FORMAT_VERSION})")
     _check_finite(payload, path)
+    _add_later_fields(payload)
     return payload
+
+
+#: Config fields added after format 3 (dotted paths), with the value meaning "as before".
+LATER_FIELDS: dict[str, Any] = {
+    "model.readout": {"enabled": False, "bins": 16, "hidden": 256},
+    "ppo.target_kl": 0.0,
+}
+
+
+def _add_later_fields(payload: dict[str, Any]) -> None:
+    """Fill config fields a checkpoint predates with the value its run behaved by.
+
+    A checkpoint written before the perception readout existed had none, so it loads
+    with ``model.readout.enabled = False`` (the strict config reader refuses missing
+    keys); one from before ``ppo.target_kl`` ran every epoch (0).
+    """
+    config = payload.get("config")
+    for path, value in LATER_FIELDS.items():
+        *parents, leaf = path.split(".")
+        node = config
+        for key in parents:
+            node = node.get(key) if isinstance(node, dict) else None
+        if isinstance(node, dict) and leaf not in node:
+            node[leaf] = copy.deepcopy(value)
 
 
 def _verified_body(raw: bytes, path: Path) -> tuple[bytes, bool]:
@@ -148,9 +177,11 @@ class CheckpointPolicy:
     ``stochastic`` samples of the Gaussian (seeded per episode by ``seed`` and
     ``obs["episode_seed"]``). Works for any number of agents (Ad-hoCoop; ``il`` copies).
 
-    The model runs one env at a time: agents only interact within their env, and a
-    batch of another size rounds floating point differently, so running envs
-    together would let ``num_envs`` change the results.
+    The model runs on fixed-size blocks of :data:`BLOCK_ENVS` envs (the last one padded
+    with copies of its first env, marked inactive): a batch of another size rounds
+    floating point differently, while within a block of fixed size an env's result
+    depends neither on its position nor on the other envs (tested), so ``num_envs``
+    does not change the results.
     """
 
     def __init__(self, model: ActorCritic, stochastic: bool = False, seed: int = 0) -> None:
@@ -176,14 +207,18 @@ class CheckpointPolicy:
         obs_t, start = obs_to_torch(obs, self.keys, device), episode_start(obs, device)
         means, scales, states = [], [], []
         with torch.no_grad():
-            for e in range(start.shape[0]):  # one env at a time: see the class docstring
-                one = slice(e, e + 1)
-                step = self.model({k: v[one] for k, v in obs_t.items()},
-                                  state.select_envs(one), start[one])
-                means.append(step.dist.mean)
-                scales.append(step.dist.base_dist.scale)
-                states.append(step.state)
-                self.comm.add(tally(step.message, obs_t["active"][one]))
+            for lo in range(0, start.shape[0], BLOCK_ENVS):  # see the class docstring
+                real = slice(lo, min(lo + BLOCK_ENVS, start.shape[0]))
+                k = real.stop - lo
+                block = {key: _padded(v[real]) for key, v in obs_t.items()}
+                block["active"][k:] = False
+                part = state.select_envs(real)
+                step = self.model(block, AgentState.cat([part] + [part.select_envs(
+                    slice(0, 1))] * (BLOCK_ENVS - k)), _padded(start[real]))
+                means.append(step.dist.mean[:k])
+                scales.append(step.dist.base_dist.scale[:k])
+                states.append(step.state.select_envs(slice(0, k)))
+                self.comm.add(tally(step.message, block["active"]))
         raw = torch.cat(means)
         if self.stochastic:
             n = obs["active"].shape[1]
@@ -195,6 +230,11 @@ class CheckpointPolicy:
     def communication(self) -> CommStats:
         """Communication of every call to :meth:`act` so far."""
         return self.comm
+
+
+def _padded(x: torch.Tensor) -> torch.Tensor:
+    """``x (k, ...)`` with its first env repeated to :data:`BLOCK_ENVS` envs."""
+    return torch.cat([x, x[:1].expand(BLOCK_ENVS - len(x), *x.shape[1:])])
 
 
 def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,

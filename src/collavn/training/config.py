@@ -100,8 +100,13 @@ class PPOConfig:
     head; the policy, encoders and log-std stay fixed, the map module keeps its own
     supervised training) — for fine-tuning a policy from ``--init-from``, whose critic
     is untrained, without letting its noise move the policy."""
+    target_kl: float = 0.0
+    """Stop an update's epochs after the first whose mean approximate KL between the
+    collecting and the updated policy exceeds this (0 = always run ``update_epochs``);
+    keeps fine-tuning from ``--init-from`` near the policy it started from."""
 
     def __post_init__(self) -> None:
+        check_number("--ppo.target-kl", self.target_kl, allow_minimum=True)
         for name in ("rollout_steps", "num_minibatches", "update_epochs"):
             check_count(f"--ppo.{name.replace('_', '-')}", getattr(self, name))
         check_count("--ppo.critic-warmup", self.critic_warmup, 0)

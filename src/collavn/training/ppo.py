@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -31,6 +32,7 @@ class PPOStats:
         approx_kl: ``E[(r − 1) − log r]`` (Schulman's estimator).
         clip_fraction: Fraction of ratios outside ``[1 − ε, 1 + ε]``.
         loss: The total optimised loss.
+        epochs: Epochs run (fewer than ``update_epochs`` when ``target_kl`` stopped them).
     """
 
     policy_loss: float
@@ -39,6 +41,7 @@ class PPOStats:
     approx_kl: float
     clip_fraction: float
     loss: float
+    epochs: float
 
 
 def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
@@ -119,8 +122,10 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Ro
     params = [p for group in optimizer.param_groups for p in group["params"]]
     critic = {id(p) for p in critic_parameters(model)}
     totals: dict[str, float] = {}
-    count = 0
+    count = epochs = 0
     for _ in range(cfg.update_epochs):
+        epochs += 1
+        epoch_kl: list[float] = []
         for index in minibatch_envs(rollout.rewards.shape[1], cfg.num_minibatches, generator):
             loss, stats = ppo_loss(model, rollout.select_envs(index), advantages[:, index],
                                    returns[:, index], cfg, critic_only)
@@ -137,4 +142,7 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Ro
             for k, v in stats.items():
                 totals[k] = totals.get(k, 0.0) + v
             count += 1
-    return PPOStats(**{k: v / max(count, 1) for k, v in totals.items()})
+            epoch_kl.append(stats["approx_kl"])
+        if cfg.target_kl > 0 and not critic_only and float(np.mean(epoch_kl)) > cfg.target_kl:
+            break  # the policy moved far enough from the one that collected the rollout
+    return PPOStats(**{k: v / max(count, 1) for k, v in totals.items()}, epochs=epochs)

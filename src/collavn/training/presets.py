@@ -79,6 +79,10 @@ CPU_REASONS: dict[str, str] = {
     "model.goal_match": "goal matching (collavn.models.matching): the goal image compared "
                         "with the panorama at every azimuth and 3 scales, instead of a GRU "
                         "learning the comparison from two pooled embeddings",
+    "model.readout": "the pretraining heads' predictions (sector distributions of the path "
+                     "and goal bearings, distance, free space; collavn.models.readout) join "
+                     "the goal vector, so 'turn towards the path' is linear in the input: "
+                     "without them il's mean action learned almost no turning",
     "model.map.size": "a 96×96 map at 20 cm (19.2 m) instead of 384×384 at 10 cm",
     "model.map.resolution": "see model.map.size",
     "model.map.local_size": "32-cell local patches at 20 cm (6.4 m, as the paper's 64 at "
