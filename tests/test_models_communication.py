@@ -280,7 +280,7 @@ def test_model_with_self_scores_below_threshold_is_silent():
 
 
 def test_train_and_eval_give_the_same_omega():
-    torch.manual_seed(3)  # an initialisation whose gates open on some steps, not all
+    torch.manual_seed(5)  # an initialisation whose gates open on some steps, not all
     model = ActorCritic(tiny())
     trained, evaluated = run(model.train(), 3, 3, e=4), run(model.eval(), 3, 3, e=4)
     for a, b in zip(trained, evaluated, strict=True):

@@ -347,3 +347,20 @@ def test_overwrite_moves_the_old_run_aside(tmp_path):
     result = train(cfg.with_run(overwrite=True))
     assert result.moved is not None and (result.moved / CHECKPOINT).is_file()
     assert result.moved.name.startswith("run.old-") and (tmp_path / "run" / CHECKPOINT).is_file()
+
+
+@pytest.mark.parametrize("torch_first", [False, True])
+def test_a_one_thread_run_stays_on_one_thread_whatever_ran_before(torch_first):
+    """Numba's OpenMP layer resets the OpenMP thread count when it starts; torch's count
+    must be set after it, or a run that follows any torch op runs on every core (and a
+    resumed run rounds differently from an uninterrupted one)."""
+    code = ("import torch\n"
+            + ("torch.arange(3)\n" if torch_first else "")
+            + "from collavn.threads import apply_threads\n"
+              "apply_threads(1)\n"
+              "print(torch.get_num_threads())\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS",
+                                                             "MKL_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, check=True, timeout=120)
+    assert out.stdout.strip() == "1"

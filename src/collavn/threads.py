@@ -22,19 +22,26 @@ def resolve_threads(requested: int) -> int:
 
 
 def apply_threads(requested: int) -> int:
-    """Set torch's and Numba's thread counts for this process; returns the torch count."""
+    """Set Numba's and torch's thread counts for this process; returns the torch count.
+
+    Numba first: its OpenMP threading layer starts by setting the OpenMP thread count
+    of the calling thread to all cores, which torch reads as its own intra-op count —
+    set after torch, it silently put a one-thread run back on two threads whenever
+    torch had already run an op (and made a resumed run round differently from an
+    uninterrupted one).
+    """
     import torch
 
     n = resolve_threads(requested)
-    torch.set_num_threads(n)
-    try:
-        torch.set_num_interop_threads(1)
-    except RuntimeError:  # only settable before the first inter-op work; keep it then
-        pass
     try:
         import numba
 
         numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
     except ImportError:  # pragma: no cover - numba is a dependency of the renderer
+        pass
+    torch.set_num_threads(n)
+    try:
+        torch.set_num_interop_threads(1)
+    except RuntimeError:  # only settable before the first inter-op work; keep it then
         pass
     return n
