@@ -44,7 +44,8 @@ def report(name: str, cfg: ModelConfig, e: int, n: int, repeats: int) -> None:
     tower = model.towers[0]
     parts = {"panorama enc": tower.panorama_encoder, "goal enc": tower.goal_encoder,
              "map builder": tower.map_builder, "map enc": tower.map_encoder,
-             "goal matching": tower.goal_matcher, "comm": tower.comm,
+             "goal matching": tower.goal_matcher, "readout": tower.readout,
+             "comm": tower.comm,
              "cores+heads": [tower.actor_core, tower.critic_core, tower.actor_mean,
                              tower.critic_value]}
     sizes = []

@@ -177,14 +177,18 @@ class CheckpointPolicy:
     ``stochastic`` samples of the Gaussian (seeded per episode by ``seed`` and
     ``obs["episode_seed"]``). Works for any number of agents (Ad-hoCoop; ``il`` copies).
 
-    The model runs on fixed-size blocks of :data:`BLOCK_ENVS` envs (the last one padded
+    The model runs on fixed-size blocks of ``block_envs`` envs (the last one padded
     with copies of its first env, marked inactive): a batch of another size rounds
     floating point differently, while within a block of fixed size an env's result
     depends neither on its position nor on the other envs (tested), so ``num_envs``
-    does not change the results.
+    does not change the results. ``block_envs = 1`` runs one env at a time (slower).
     """
 
-    def __init__(self, model: ActorCritic, stochastic: bool = False, seed: int = 0) -> None:
+    def __init__(self, model: ActorCritic, stochastic: bool = False, seed: int = 0,
+                 block_envs: int = BLOCK_ENVS) -> None:
+        if block_envs < 1:
+            raise ValueError(f"block_envs must be ≥ 1, got {block_envs}")
+        self.block_envs = block_envs
         self.model = model.eval()
         self.keys = policy_keys(model.cfg.map.use_depth)
         self.stochastic = stochastic
@@ -207,14 +211,15 @@ class CheckpointPolicy:
         obs_t, start = obs_to_torch(obs, self.keys, device), episode_start(obs, device)
         means, scales, states = [], [], []
         with torch.no_grad():
-            for lo in range(0, start.shape[0], BLOCK_ENVS):  # see the class docstring
-                real = slice(lo, min(lo + BLOCK_ENVS, start.shape[0]))
+            size = self.block_envs
+            for lo in range(0, start.shape[0], size):  # see the class docstring
+                real = slice(lo, min(lo + size, start.shape[0]))
                 k = real.stop - lo
-                block = {key: _padded(v[real]) for key, v in obs_t.items()}
+                block = {key: _padded(v[real], size) for key, v in obs_t.items()}
                 block["active"][k:] = False
                 part = state.select_envs(real)
                 step = self.model(block, AgentState.cat([part] + [part.select_envs(
-                    slice(0, 1))] * (BLOCK_ENVS - k)), _padded(start[real]))
+                    slice(0, 1))] * (size - k)), _padded(start[real], size))
                 means.append(step.dist.mean[:k])
                 scales.append(step.dist.base_dist.scale[:k])
                 states.append(step.state.select_envs(slice(0, k)))
@@ -232,9 +237,9 @@ class CheckpointPolicy:
         return self.comm
 
 
-def _padded(x: torch.Tensor) -> torch.Tensor:
-    """``x (k, ...)`` with its first env repeated to :data:`BLOCK_ENVS` envs."""
-    return torch.cat([x, x[:1].expand(BLOCK_ENVS - len(x), *x.shape[1:])])
+def _padded(x: torch.Tensor, size: int) -> torch.Tensor:
+    """``x (k, ...)`` with its first env repeated to ``size`` envs."""
+    return torch.cat([x, x[:1].expand(size - len(x), *x.shape[1:])])
 
 
 def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
