@@ -11,7 +11,7 @@ from collavn.models.communication import (
     communication_counts,
     match_and_select,
 )
-from collavn.models.config import CommConfig, MapConfig, MatchConfig, ModelConfig
+from collavn.models.config import CommConfig, MapConfig, MatchConfig, ModelConfig, ReadoutConfig
 from collavn.models.encoders import (
     ResNet18Encoder,
     SmallCNNEncoder,
@@ -21,12 +21,14 @@ from collavn.models.encoders import (
 from collavn.models.mapping import MapBuilder, MapEncoder, map_loss
 from collavn.models.matching import GoalMatcher
 from collavn.models.policy import ActorCritic, ActOutput, EvaluateOutput, PolicyStep
+from collavn.models.readout import PerceptionReadout
 from collavn.models.state import AgentState
 
 __all__ = [
     "ActOutput", "ActorCritic", "AgentState", "CommConfig", "CommCounts", "CommProjections",
     "EvaluateOutput", "GoalMatcher", "MapBuilder", "MapConfig", "MapEncoder", "MatchConfig",
-    "Message", "ModelConfig", "PolicyStep", "ResNet18Encoder", "SmallCNNEncoder",
+    "Message", "ModelConfig", "PerceptionReadout", "PolicyStep", "ReadoutConfig",
+    "ResNet18Encoder", "SmallCNNEncoder",
     "communication_counts", "load_imagenet_weights", "make_encoder", "map_loss",
     "match_and_select",
 ]
