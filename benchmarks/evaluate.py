@@ -43,8 +43,10 @@ def main() -> None:
         model = policy.model
     else:
         torch.manual_seed(0)
-        model = ActorCritic(ModelConfig.cpu())
-        overrides = {"panorama_width": 128, "panorama_height": 32, "goal_size": 32}
+        cfg = ModelConfig.cpu()
+        model = ActorCritic(cfg)
+        _, h, w = cfg.panorama_shape
+        overrides = {"panorama_width": w, "panorama_height": h, "goal_size": cfg.goal_shape[-1]}
     env = replace(EnvConfig(task="commongoal", num_agents=2), **overrides)
     scene = load_scene(args.scene)
     episodes = sample_episodes(scene, "commongoal", 2, "easy", args.episodes,

@@ -146,8 +146,8 @@ def test_evaluation_reports_communication_per_method(door_scene, tmp_path, capsy
     small = ["--panorama-width", "32", "--panorama-height", "8", "--goal-size", "8"]
     rates = {}
     for name in ("random", "oracle", "ours", "no-com"):
-        policy = name if name in ("random", "oracle") else str(
-            _untrained_checkpoint(tmp_path / f"{name}.pt", name))
+        policy = name if name in ("random", "oracle") else str(  # seed 15: mixed gates
+            _untrained_checkpoint(tmp_path / f"{name}.pt", name, seed=15))
         capsys.readouterr()
         assert main(["evaluate", "--policy", policy, "--dataset", str(data), "--out",
                      str(tmp_path / name), "--json", *small]) == 0
@@ -155,7 +155,7 @@ def test_evaluation_reports_communication_per_method(door_scene, tmp_path, capsy
         assert "comm. received" in (tmp_path / name / "metrics.md").read_text()
     zero = {"received_rate": 0.0, "when_rate": 0.0, "bytes_per_agent_step": 0.0}
     assert rates["random"] == rates["oracle"] == rates["no-com"] == zero
-    assert 0.0 < rates["ours"]["received_rate"] <= 1.0
+    assert 0.0 < rates["ours"]["received_rate"] < 1.0
     assert rates["ours"]["received_rate"] <= rates["ours"]["when_rate"]
     assert rates["ours"]["bytes_per_agent_step"] > 0
 

@@ -191,7 +191,6 @@ def test_init_from_a_silent_checkpoint_starts_a_talking_run_with_its_policy(tmp_
         build_run(other, DistInfo(), torch.device("cpu"))
 
 
-
 def test_a_checkpoint_from_before_the_readout_loads_with_it_off(tmp_path):
     from collavn.models.config import ReadoutConfig
     from collavn.models.policy import ActorCritic

@@ -56,11 +56,12 @@ class Pretrainer:
         torch.manual_seed(cfg.seed)
         self.frames = FramePerception(cfg.model)
         p = cfg.perception
-        # The model's own readout if it has one (saved with the encoder), else heads
-        # that are discarded after.
-        self.heads = self.frames.readout or PerceptionReadout(
-            self.frames.embed_size, self.frames.pair_goal_size, p.bins, p.hidden)
-        params = list(dict.fromkeys([*self.frames.parameters(), *self.heads.parameters()]))
+        # The model's own readout if it has one (its parameters are the frames', saved
+        # with the encoder), else heads of their own that are discarded after.
+        own = self.frames.readout
+        self.heads = own or PerceptionReadout(self.frames.embed_size,
+                                              self.frames.pair_goal_size, p.bins, p.hidden)
+        params = [*self.frames.parameters(), *([] if own else self.heads.parameters())]
         self.optimizer = torch.optim.Adam(params, lr=p.lr)
         self.rng = np.random.default_rng(cfg.seed + 1)
 

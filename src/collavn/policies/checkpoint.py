@@ -26,11 +26,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from collavn.configs import from_dict
+from collavn.configs import from_dict, to_dict
 from collavn.errors import CheckpointError, ConfigError
 from collavn.files import atomic_write, sha256_hex
 from collavn.models.communication import Message, communication_counts
-from collavn.models.config import ModelConfig
+from collavn.models.config import ModelConfig, ReadoutConfig
 from collavn.models.policy import ActorCritic
 from collavn.models.state import AgentState
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
@@ -102,9 +102,10 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
     return payload
 
 
-#: Config fields added after format 3 (dotted paths), with the value meaning "as before".
+#: Config fields added after format 3 (dotted paths), with the value meaning "as before":
+#: no readout, every PPO epoch.
 LATER_FIELDS: dict[str, Any] = {
-    "model.readout": {"enabled": False, "bins": 16, "hidden": 256},
+    "model.readout": to_dict(ReadoutConfig(enabled=False)),
     "ppo.target_kl": 0.0,
 }
 
