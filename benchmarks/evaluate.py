@@ -46,7 +46,8 @@ def main() -> None:
         cfg = ModelConfig.cpu()
         model = ActorCritic(cfg)
         _, h, w = cfg.panorama_shape
-        overrides = {"panorama_width": w, "panorama_height": h, "goal_size": cfg.goal_shape[-1]}
+        overrides = {"panorama_width": w, "panorama_height": h, "goal_size": cfg.goal_shape[-1],
+                     "free_space": cfg.free_space_input}
     env = replace(EnvConfig(task="commongoal", num_agents=2), **overrides)
     scene = load_scene(args.scene)
     episodes = sample_episodes(scene, "commongoal", 2, "easy", args.episodes,

@@ -21,7 +21,8 @@ def observations(cfg: ModelConfig, e: int, n: int) -> dict[str, torch.Tensor]:
     return dict(
         panorama=torch.randint(0, 256, (e, n, *cfg.panorama_shape), dtype=torch.uint8),
         goal=torch.randint(0, 256, (e, n, *cfg.goal_shape), dtype=torch.uint8),
-        pose_delta=torch.randn(e, n, 3) * 0.3, active=torch.ones(e, n, dtype=torch.bool))
+        pose_delta=torch.randn(e, n, 3) * 0.3, active=torch.ones(e, n, dtype=torch.bool),
+        free_space=torch.rand(e, n, cfg.free_space_input) * 4.0)
 
 
 def time_steps(model: ActorCritic, cfg: ModelConfig, e: int, n: int, repeats: int) -> float:

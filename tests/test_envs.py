@@ -138,3 +138,25 @@ def test_vector_env_delivers_torch_tensors_on_request(open_room):
     obs, *_ = env.step(torch.zeros(2, 2, 2))
     assert isinstance(obs["pose_delta"], torch.Tensor)
     assert torch.equal(obs["pose_delta"], torch.zeros(2, 2, 3))  # standing still
+
+
+def test_the_free_space_sensor_reads_the_depth_it_renders(open_room):
+    from collavn.envs.free_space import FREE_SPACE_RANGE, free_runs
+    from collavn.errors import ConfigError
+    from collavn.simulation.kinematics import AgentParams
+
+    cfg = EnvConfig(num_agents=2, depth=True, free_space=8, **SMALL)
+    env = VectorEnv([open_room], 2, cfg, seed=4)
+    obs, _ = env.reset(seed=4)
+    assert obs["free_space"].shape == (2, 2, 8) and obs["free_space"].dtype == np.float32
+    expected = free_runs(obs["depth"], AgentParams().radius, horizon=FREE_SPACE_RANGE,
+                         directions=8)
+    np.testing.assert_allclose(obs["free_space"], expected, rtol=1e-6)
+    assert (obs["free_space"] > 0).all() and (obs["free_space"] < FREE_SPACE_RANGE).any()
+    again, _ = VectorEnv([open_room], 2, cfg, seed=4).reset(seed=4)
+    np.testing.assert_array_equal(again["free_space"], obs["free_space"])
+    parallel = make_parallel_env(open_room, num_agents=2, free_space=8, **SMALL)
+    assert parallel.observation_space("agent_0")["free_space"].shape == (8,)
+    assert parallel.reset(seed=3)[0]["agent_1"]["free_space"].shape == (8,)
+    with pytest.raises(ConfigError, match=r"--env.free-space 5 must divide the panorama width"):
+        EnvConfig(free_space=5, **SMALL)

@@ -160,8 +160,8 @@ def test_evaluation_reports_communication_per_method(door_scene, tmp_path, capsy
     assert rates["ours"]["bytes_per_agent_step"] > 0
 
 
-def test_a_checkpoint_policy_scores_the_same_for_any_num_envs(door_scene):
-    """Fixed-size blocks of envs: 3, 8 or 11 envs at once give bit-identical records."""
+def _block_runs(door_scene, variant: str, seed: int):
+    """Records of one tiny checkpoint policy at 3, 8 and 11 envs (blocks of 8)."""
     from dataclasses import replace
 
     import torch
@@ -171,12 +171,30 @@ def test_a_checkpoint_policy_scores_the_same_for_any_num_envs(door_scene):
     from training_fixtures import TINY_MODEL
 
     torch.set_num_threads(1)
-    torch.manual_seed(0)
-    model = ActorCritic(replace(TINY_MODEL, panorama_shape=(3, 16, 64), goal_shape=(3, 16, 16)))
+    torch.manual_seed(seed)
+    model = ActorCritic(replace(TINY_MODEL, panorama_shape=(3, 16, 64), goal_shape=(3, 16, 16),
+                                comm=replace(TINY_MODEL.comm, variant=variant)))
     env = replace(SMALL, panorama_width=64, panorama_height=16, goal_size=16, max_steps=12)
     episodes = sample_episodes(door_scene, "commongoal", 2, "medium", 11,
                                np.random.default_rng(1))
-    runs = [evaluate(CheckpointPolicy(model, stochastic=True, seed=2), door_scene, episodes,
-                     env, num_envs=k) for k in (3, 8, 11)]
-    assert runs[0].records == runs[1].records == runs[2].records
-    assert len({r.final_distance for r in runs[0].records}) > 1
+    with pytest.raises(KeyError, match=r"reads free_space, which the observation lacks"):
+        evaluate(CheckpointPolicy(model), door_scene, episodes[:1], env)
+    env = replace(env, free_space=TINY_MODEL.free_space_input)
+    return [evaluate(CheckpointPolicy(model, stochastic=True, seed=2), door_scene, episodes,
+                     env, num_envs=k).records for k in (3, 8, 11)]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_checkpoint_policy_scores_the_same_for_any_num_envs(door_scene, seed):
+    """Fixed-size blocks of envs: 3, 8 or 11 envs at once give bit-identical records."""
+    runs = _block_runs(door_scene, "none", seed)
+    assert runs[0] == runs[1] == runs[2]
+    assert len({r.final_distance for r in runs[0]}) > 1
+
+
+@pytest.mark.xfail(strict=True, reason="known: with communication on, an env's actions "
+                   "differ in the last bits with the other envs of its block (found "
+                   "2026-12-02, not yet located; block_envs=1 is exact)")
+def test_a_communicating_policy_scores_the_same_for_any_num_envs(door_scene):
+    runs = _block_runs(door_scene, "memory", 1)
+    assert runs[0] == runs[1] == runs[2]

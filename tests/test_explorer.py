@@ -113,3 +113,17 @@ def test_explorer_scores_between_random_and_oracle(apartment):
                                     ("oracle", OraclePolicy([apartment]),
                                      replace(cfg, privileged=True)))}
     assert sr["random"] + 0.1 <= sr["explorer"] <= sr["oracle"] - 0.1, sr
+
+
+def test_free_runs_of_a_batch_and_of_fewer_directions_agree_with_one_frame_each():
+    depth = np.stack([wall_depth(d) for d in (0.5, 2.0, 5.0)]).reshape(3, 1, 16, 64)
+    batch = free_runs(depth, radius=0.2)
+    assert batch.shape == (3, 1, 64)
+    for k in range(3):
+        np.testing.assert_array_equal(batch[k, 0], free_runs(depth[k, 0], radius=0.2))
+    # 8 directions: every 8th column, from straight behind; column 32 is straight ahead
+    eight = free_runs(depth, radius=0.2, directions=8)
+    np.testing.assert_array_equal(eight, batch[..., ::8])
+    assert eight[1, 0, 4] == pytest.approx(2.0 - 0.2, abs=1e-4)
+    with pytest.raises(ValueError, match=r"directions \(5\) must divide the panorama width"):
+        free_runs(depth, radius=0.2, directions=5)

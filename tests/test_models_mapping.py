@@ -205,6 +205,7 @@ def test_map_feature_channels_learn_from_the_policy_loss():
             panorama=torch.randint(0, 256, (e, n, 3, 16, 64), generator=g, dtype=torch.uint8),
             goal=torch.randint(0, 256, (e, n, 3, 16, 16), generator=g, dtype=torch.uint8),
             pose_delta=torch.randn(e, n, 3, generator=g) * 0.3,
+            free_space=torch.rand(e, n, 16, generator=g) * 4.0,
             active=torch.ones(e, n, dtype=torch.bool))
 
     state = model.initial_state(e, n)

@@ -76,7 +76,8 @@ def test_policy_with_and_without_matching_and_old_configs():
     assert on.towers[0].goal_matcher is not None and off.towers[0].goal_matcher is None
     obs = dict(panorama=panoramas(2, 8).view(1, 2, 3, 32, 128),
                goal=panoramas(2, 9)[..., :32].reshape(1, 2, 3, 32, 32),
-               pose_delta=torch.zeros(1, 2, 3), active=torch.ones(1, 2, dtype=torch.bool))
+               pose_delta=torch.zeros(1, 2, 3), free_space=torch.ones(1, 2, 16),
+               active=torch.ones(1, 2, dtype=torch.bool))
     start = torch.ones(1, 2, dtype=torch.bool)
     for model in (on, off):
         out = model.act(obs, model.initial_state(1, 2), start)

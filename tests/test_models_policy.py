@@ -23,6 +23,7 @@ def observations(e: int, n: int, seed: int, shape=(16, 64), goal=(16, 16)):
         panorama=torch.randint(0, 256, (e, n, 3, *shape), generator=g, dtype=torch.uint8),
         goal=torch.randint(0, 256, (e, n, 3, *goal), generator=g, dtype=torch.uint8),
         pose_delta=torch.randn(e, n, 3, generator=g) * 0.3,
+        free_space=torch.rand(e, n, 16, generator=g) * 4.0,  # read iff free_space_input
         active=torch.ones(e, n, dtype=torch.bool))
 
 
@@ -167,8 +168,8 @@ def test_paper_size_shapes():
 
 def test_odometry_input_reaches_the_actor_but_not_at_an_episode_start():
     torch.manual_seed(0)
-    model = ActorCritic(tiny("none", odometry_input=True))
-    plain = ActorCritic(tiny("none", odometry_input=False))
+    model = ActorCritic(tiny("none", odometry_input=True, free_space_input=0))
+    plain = ActorCritic(tiny("none", odometry_input=False, free_space_input=0))
     assert model.towers[0].actor_core.input_size == plain.towers[0].actor_core.input_size + 3
     obs = observations(1, 2, 3)
     delta = torch.tensor([[0.7, 0.0, 0.2], [0.0, 0.0, 0.0]])

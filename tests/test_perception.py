@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from collavn.errors import CheckpointError, ConfigError
-from collavn.models.config import ReadoutConfig
+from collavn.models.config import MatchConfig, ReadoutConfig
 from collavn.models.frames import FRAME_MODULES, FramePerception
 from collavn.models.policy import MAP_TRACK
 from collavn.perception.config import PerceptionConfig, PretrainConfig
@@ -23,6 +23,9 @@ from collavn.training.trainer import build_run, collect_rollout, learn, sync_poi
 from training_fixtures import TINY_MODEL, tiny_config
 
 W = 64
+#: TINY_MODEL with the rotation-equivariant readout.
+RING_MODEL = dataclasses.replace(TINY_MODEL, readout=dataclasses.replace(TINY_MODEL.readout,
+                                                                         ring=True))
 
 
 def circular_gap(a, b, width=W):
@@ -58,8 +61,8 @@ def test_labels_agree_with_the_geodesic_field_on_hand_picked_poses(l_corridor):
     assert 0.6 <= ahead <= 0.85 and left == 4.0
 
 
-def _tiny_pretrain(scene) -> tuple[PretrainConfig, Pretrainer]:
-    cfg = tiny_config("no-com")
+def _tiny_pretrain(scene, model=TINY_MODEL) -> tuple[PretrainConfig, Pretrainer]:
+    cfg = tiny_config("no-com", model=model)
     p = PerceptionConfig(frames_per_scene=24, goals_per_scene=3, val_frames_per_scene=8,
                          bins=8, batch_size=16, lr=3e-3, hidden=32, steps=80)
     pcfg = PretrainConfig(env=cfg.env, model=cfg.model, perception=p, progress=False)
@@ -80,9 +83,10 @@ def test_frames_are_labelled_by_the_scene(l_corridor):
     assert ((batch["path_column"] >= 0) & (batch["path_column"] < 64)).all()
 
 
-def test_pretraining_lowers_the_loss_on_a_tiny_set(l_corridor):
+@pytest.mark.parametrize("model", [TINY_MODEL, RING_MODEL], ids=["pooled", "ring"])
+def test_pretraining_lowers_the_loss_on_a_tiny_set(l_corridor, model):
     torch.set_num_threads(1)
-    cfg, trainer = _tiny_pretrain(l_corridor)
+    cfg, trainer = _tiny_pretrain(l_corridor, model)
     fixed = sample_batch(trainer.train, 64, cfg.perception, np.random.default_rng(3),
                          augment=False)
     with torch.no_grad():
@@ -167,9 +171,10 @@ def test_a_run_refuses_an_encoder_made_for_other_image_sizes(tmp_path):
                   torch.device("cpu"))
 
 
-def test_the_pretrained_heads_become_the_policy_readout(l_corridor, tmp_path):
+@pytest.mark.parametrize("model", [TINY_MODEL, RING_MODEL], ids=["pooled", "ring"])
+def test_the_pretrained_heads_become_the_policy_readout(l_corridor, tmp_path, model):
     torch.set_num_threads(1)
-    cfg, trainer = _tiny_pretrain(l_corridor)
+    cfg, trainer = _tiny_pretrain(l_corridor, model)
     assert trainer.heads is trainer.frames.readout  # the model's own heads are trained
     for _ in range(3):
         trainer.step()
@@ -177,9 +182,10 @@ def test_the_pretrained_heads_become_the_policy_readout(l_corridor, tmp_path):
     path = save_encoder(tmp_path / "encoder.pt", trainer.frames,
                         encoder_spec(cfg.model, cfg.env.camera_height), {}, {}, 3)
     assert any(k.startswith("readout.") for k in load_encoder(path).state_dict)
-    run = build_run(tiny_config("il").with_run(encoder=str(path)), DistInfo(),
+    run = build_run(tiny_config("il", model=model).with_run(encoder=str(path)), DistInfo(),
                     torch.device("cpu"))
     tower = run.model.towers[0]
+    assert type(tower.readout) is type(trainer.heads)
     batch = sample_batch(trainer.val, 4, cfg.perception, np.random.default_rng(0),
                          augment=False)
     pan, goal = torch.as_tensor(batch["panorama"]), torch.as_tensor(batch["goal"])
@@ -201,3 +207,74 @@ def test_pretraining_refuses_heads_of_another_size_than_the_models_readout():
     with pytest.raises(ConfigError, match=r"model.readout \(bins 8, hidden 32\)"):
         PretrainConfig(env=env, model=TINY_MODEL, perception=PerceptionConfig(bins=16,
                                                                               hidden=32))
+
+
+def test_the_ring_readout_turns_with_the_panorama():
+    model = dataclasses.replace(RING_MODEL, panorama_shape=(3, 16, W), goal_shape=(3, 16, 16))
+    torch.manual_seed(0)
+    frames = FramePerception(model).eval()
+    gen = torch.Generator().manual_seed(1)
+    pan = torch.randint(0, 256, (3, 3, 16, W), generator=gen, dtype=torch.uint8)
+    goal = torch.randint(0, 256, (3, 3, 16, 16), generator=gen, dtype=torch.uint8)
+    sector = W // model.readout.bins
+    with torch.no_grad():
+        o, g, ring = frames.see_pair(pan, goal)
+        _, _, turned = frames.see_pair(torch.roll(pan, sector, dims=-1), goal)
+        torch.testing.assert_close(turned, torch.roll(ring, sector // 4, dims=-1))
+        before, after = frames.readout(o, g, ring), frames.readout(o, g, turned)
+    # the same weights judge every azimuth: with the same context, a panorama turned by
+    # one sector turns every per-sector prediction by one sector
+    for label in ("path_bearing", "goal_bearing", "free_space"):
+        torch.testing.assert_close(after[label], torch.roll(before[label], 1, dims=-1))
+        assert not torch.allclose(after[label], before[label])
+    torch.testing.assert_close(after["distance"], before["distance"])
+
+
+def test_the_ring_readout_refuses_what_it_cannot_read(tmp_path):
+    with pytest.raises(ValueError, match=r"readout\.ring reads the goal matcher's"):
+        dataclasses.replace(RING_MODEL, goal_match=MatchConfig(enabled=False))
+    odd = dataclasses.replace(RING_MODEL, panorama_shape=(3, 16, W), goal_shape=(3, 16, 16),
+                              readout=ReadoutConfig(enabled=True, bins=5, hidden=8, ring=True))
+    with pytest.raises(ValueError, match=r"readout bins \(5\) must divide the matcher's 16"):
+        FramePerception(odd)
+    # an encoder pretrained with the pooled heads does not feed a ring model
+    path, _ = _encoder_file(tmp_path, TINY_MODEL)
+    with pytest.raises(CheckpointError, match=r"readout: encoder .* vs run .*\"ring\": true"):
+        build_run(tiny_config("no-com", model=RING_MODEL).with_run(encoder=str(path)),
+                  DistInfo(), torch.device("cpu"))
+
+
+def test_free_space_is_a_policy_input_stored_with_the_rollout(tmp_path):
+    from collavn.policies.checkpoint import load_policy, save_checkpoint
+
+    torch.set_num_threads(1)
+    path, _ = _encoder_file(tmp_path)
+    model = dataclasses.replace(TINY_MODEL, free_space_input=8)
+    cfg = tiny_config("ours", rollout_steps=3, model=model).with_run(encoder=str(path))
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    sync_point(run)
+    assert run.obs["free_space"].shape == (2, 2, 8)  # the run turned the sensor on
+    tower = run.model.towers[0]
+    assert tower.map_vector_size == cfg.model.map.embed_dim + 3 + 8
+    rollout, _ = collect_rollout(run)
+    assert rollout.obs["free_space"].shape == (3, 2, 2, 8)
+    with torch.no_grad():
+        out = run.model.evaluate_actions(rollout.obs, rollout.initial_state,
+                                         rollout.episode_start, rollout.raw_actions,
+                                         rollout.percepts)
+        assert torch.equal(out.log_prob, rollout.log_probs)
+        # the input matters: other free space, other actions
+        blocked = dict(rollout.obs, free_space=torch.zeros_like(rollout.obs["free_space"]))
+        other = run.model.evaluate_actions(blocked, rollout.initial_state,
+                                           rollout.episode_start, rollout.raw_actions,
+                                           rollout.percepts)
+        assert not torch.equal(other.log_prob, rollout.log_probs)
+        missing = {k: v for k, v in rollout.obs.items() if k != "free_space"}
+        with pytest.raises(ValueError, match=r"reads 8 free-space directions; the "
+                                             r"observation has None \(EnvConfig.free_space\)"):
+            run.model.evaluate_actions(missing, rollout.initial_state, rollout.episode_start,
+                                       rollout.raw_actions, rollout.percepts)
+    save_checkpoint(tmp_path / "c.pt", {"config": cfg.to_dict(), "update": 0,
+                                        "model": run.model.state_dict()})
+    _, overrides = load_policy(tmp_path / "c.pt")
+    assert overrides["free_space"] == 8  # evaluation renders what the policy reads

@@ -100,12 +100,14 @@ def test_resume_with_another_config_is_refused(resumed_and_straight):
 def test_checkpoint_loads_as_an_evaluation_policy_for_any_n(resumed_and_straight):
     _, root, *_ = resumed_and_straight
     policy, overrides = load_policy(root / "straight" / CHECKPOINT)
-    assert overrides == {"panorama_width": 64, "panorama_height": 16, "goal_size": 16}
+    assert overrides == {"panorama_width": 64, "panorama_height": 16, "goal_size": 16,
+                         "free_space": 16}
     rng = np.random.default_rng(0)
     for n in (2, 3):
         obs = {"panorama": rng.integers(0, 255, (1, n, 3, 16, 64), dtype=np.uint8),
                "goal": rng.integers(0, 255, (1, n, 3, 16, 16), dtype=np.uint8),
                "pose_delta": np.zeros((1, n, 3), np.float32),
+               "free_space": rng.uniform(0, 4, (1, n, 16)).astype(np.float32),
                "active": np.ones((1, n), bool), "step": np.zeros((1, n), np.int64),
            "episode_seed": np.zeros(1, np.int64)}
         state = policy.initial_state(1, n)
@@ -137,6 +139,7 @@ def test_stochastic_evaluation_samples_reproducibly_and_leaves_torch_rng_alone(
     obs = {"panorama": rng.integers(0, 255, (1, 2, 3, 16, 64), dtype=np.uint8),
            "goal": rng.integers(0, 255, (1, 2, 3, 16, 16), dtype=np.uint8),
            "pose_delta": np.zeros((1, 2, 3), np.float32),
+           "free_space": rng.uniform(0, 4, (1, 2, 16)).astype(np.float32),
            "active": np.ones((1, 2), bool), "step": np.zeros((1, 2), np.int64),
            "episode_seed": np.zeros(1, np.int64)}
     mean_policy, _ = load_policy(root / "straight" / CHECKPOINT)
@@ -176,7 +179,8 @@ def test_init_from_a_silent_checkpoint_starts_a_talking_run_with_its_policy(tmp_
     e, n = 2, 2
     obs = {"panorama": torch.randint(0, 255, (e, n, 3, 16, 64), dtype=torch.uint8),
            "goal": torch.randint(0, 255, (e, n, 3, 16, 16), dtype=torch.uint8),
-           "pose_delta": torch.zeros(e, n, 3), "active": torch.ones(e, n, dtype=torch.bool)}
+           "pose_delta": torch.zeros(e, n, 3), "free_space": torch.rand(e, n, 16) * 4,
+           "active": torch.ones(e, n, dtype=torch.bool)}
     start = torch.ones(e, n, dtype=torch.bool)
     for model in (silent.model, talking.model):
         model.eval()
@@ -196,13 +200,23 @@ def test_a_checkpoint_from_before_the_readout_loads_with_it_off(tmp_path):
     from collavn.models.policy import ActorCritic
 
     cfg = tiny_config("no-com")
-    model_cfg = replace(cfg.model, readout=ReadoutConfig())
+    model_cfg = replace(cfg.model, readout=ReadoutConfig(), free_space_input=0)
     config = replace(cfg, model=model_cfg).to_dict()
     del config["model"]["readout"]  # written before these fields existed
     del config["ppo"]["target_kl"]
+    del config["model"]["free_space_input"]
     save_checkpoint(tmp_path / "old.pt", {"config": config, "update": 0,
                                           "model": ActorCritic(model_cfg).state_dict()})
     policy, _ = load_policy(tmp_path / "old.pt")
     assert policy.model.cfg.readout == ReadoutConfig(enabled=False)
     assert policy.model.towers[0].readout is None
+    assert policy.model.cfg.free_space_input == 0
     assert saved_config(load_checkpoint(tmp_path / "old.pt"), "old.pt").ppo.target_kl == 0.0
+    # one from before the ring readout had the pooled heads
+    config = cfg.to_dict()
+    del config["model"]["readout"]["ring"]
+    save_checkpoint(tmp_path / "pooled.pt", {"config": config, "update": 0,
+                                             "model": ActorCritic(cfg.model).state_dict()})
+    policy, _ = load_policy(tmp_path / "pooled.pt")
+    assert policy.model.cfg.readout == replace(cfg.model.readout, ring=False)
+    assert type(policy.model.towers[0].readout).__name__ == "PerceptionReadout"

@@ -34,6 +34,11 @@ class EnvConfig:
         gt_map: Also return ground-truth egocentric occupancy/explored maps projected
             from the depth (for supervising a map module; never a policy input).
         gt_map_size: Side in cells of the ground-truth map (10 cm cells).
+        free_space: Directions of the free-space sensor (0 = off): per direction, every
+            ``W/free_space``-th panorama column from straight behind, the metres the
+            robot's body can drive straight before touching what the depth panorama
+            shows, up to 4 m (``free_space (E, N, D)``; see :mod:`collavn.envs.free_space`).
+            Renders nothing extra: it is read off the depth the renderer makes anyway.
         odometry_noise: Std of Gaussian noise added to ``pose_delta`` (metres and
             radians); 0 = noise-free (default).
         max_steps: Episode length T.
@@ -58,6 +63,7 @@ class EnvConfig:
     depth: bool = False
     gt_map: bool = False
     gt_map_size: int = 64
+    free_space: int = 0
     odometry_noise: float = 0.0
     max_steps: int = 80
     difficulty: DifficultyChoice = "mixed"
@@ -73,6 +79,10 @@ class EnvConfig:
             check_count(f"--{name.replace('_', '-')}", getattr(self, name))
         check_count("--env.max-steps", self.max_steps)
         check_count("--env.gt-map-size", self.gt_map_size)
+        check_count("--env.free-space", self.free_space, 0)
+        if self.free_space and self.panorama_width % self.free_space:
+            raise ConfigError(f"--env.free-space {self.free_space} must divide the panorama "
+                              f"width {self.panorama_width}")
         check_count("--render-threads", self.render_threads)
         check_number("--env.camera-height", self.camera_height)
         check_number("--env.odometry-noise", self.odometry_noise, allow_minimum=True)

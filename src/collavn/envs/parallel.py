@@ -3,7 +3,8 @@
 Each agent observes a dict: ``panorama`` (3, H, W) uint8, ``goal`` (3, G, G) uint8,
 ``pose_delta`` (3,) float32 odometry since its previous step in its previous frame
 (x forward, y left, yaw CCW), ``pose`` (3,) float32 its pose in its own start frame,
-and optionally ``depth`` (H, W) float32 and ``gt_map`` (2, M, M) float32. Actions are
+and optionally ``depth`` (H, W) float32, ``gt_map`` (2, M, M) float32 and ``free_space``
+(D,) float32 metres (``EnvConfig.free_space``). Actions are
 Box(-1, 1, (2,)): normalised (linear, angular) velocity; out-of-range values are
 clipped, NaN/inf raise :class:`~collavn.errors.ActionError` naming the agent.
 
@@ -22,6 +23,7 @@ from pettingzoo import ParallelEnv
 
 from collavn.datasets.episode import Episode
 from collavn.envs.config import EnvConfig
+from collavn.envs.free_space import FREE_SPACE_RANGE
 from collavn.envs.vector import VectorEnv
 from collavn.errors import ActionError
 from collavn.scenes.scene import Scene
@@ -57,6 +59,9 @@ class CollaVNParallelEnv(ParallelEnv):
         if cfg.gt_map:
             fields["gt_map"] = spaces.Box(0.0, 1.0, (2, cfg.gt_map_size, cfg.gt_map_size),
                                           np.float32)
+        if cfg.free_space:
+            fields["free_space"] = spaces.Box(0.0, FREE_SPACE_RANGE, (cfg.free_space,),
+                                              np.float32)
         self._obs_space = spaces.Dict(fields)
         self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._last: dict[str, np.ndarray] | None = None

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from collavn.envs.config import EnvConfig
+from collavn.envs.free_space import FREE_SPACE_RANGE, free_runs
 from collavn.rendering.cameras import CameraSpec
 from collavn.rendering.renderer import Renderer
 from collavn.scenes.scene import Scene
@@ -52,6 +53,15 @@ class Sensors:
                                    exclude=own)
         h, w = self.panorama.height, self.panorama.width
         return Views(out.rgb.reshape(e, n, 3, h, w), out.depth.reshape(e, n, h, w))
+
+    def free_space(self, depth: np.ndarray, radius: float) -> np.ndarray:
+        """``(E, N, D)`` metres a body of ``radius`` can drive along each direction.
+
+        The ``config.free_space`` directions, from the panoramas' depth ``(E, N, H, W)``.
+        """
+        return free_runs(depth, radius, self.config.camera_height,
+                         np.deg2rad(self.panorama.fov_deg), horizon=FREE_SPACE_RANGE,
+                         directions=self.config.free_space).astype(np.float32)
 
     def goal_images(self, goal_poses: np.ndarray) -> np.ndarray:
         """Front views at goal poses ``(E, N, 3)`` (no robots in them): ``(E, N, 3, G, G)``."""

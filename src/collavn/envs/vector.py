@@ -204,6 +204,8 @@ class VectorEnv:
             obs["depth"] = np.zeros((e, n, cfg.panorama_height, cfg.panorama_width), np.float32)
         if cfg.gt_map:
             obs["gt_map"] = np.zeros((e, n, 2, cfg.gt_map_size, cfg.gt_map_size), np.float32)
+        if cfg.free_space:
+            obs["free_space"] = np.zeros((e, n, cfg.free_space), np.float32)
         if cfg.privileged:
             obs["world_pose"] = np.zeros((e, n, 3), np.float64)
             obs["goal_position"] = np.zeros((e, n, 2), np.float64)
@@ -217,6 +219,8 @@ class VectorEnv:
                 obs["depth"][envs] = views.depth
             if cfg.gt_map:
                 obs["gt_map"][envs] = sensors.gt_maps(poses, views.depth)
+            if cfg.free_space:
+                obs["free_space"][envs] = sensors.free_space(views.depth, world.params.radius)
             delta = relative_pose(self._last_pose[envs], poses)
             if cfg.odometry_noise > 0:
                 delta = delta + np.stack([self._noise[i].normal(0.0, cfg.odometry_noise,

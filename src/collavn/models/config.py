@@ -142,11 +142,16 @@ class ReadoutConfig:
         bins: Azimuth sectors (must divide the panorama width; pretraining's
             ``perception.bins`` must agree).
         hidden: Width of the heads' hidden layer (pretraining's ``perception.hidden``).
+        ring: Predict bearings and free space per azimuth with one circular convolution
+            over the goal matcher's feature columns
+            (:class:`~collavn.models.readout.RingReadout`: rotation-equivariant) instead
+            of MLPs on the pooled embeddings. Needs goal matching.
     """
 
     enabled: bool = False
     bins: int = 16
     hidden: int = 256
+    ring: bool = False
 
     def __post_init__(self) -> None:
         if self.bins < 1 or self.hidden < 1:
@@ -178,6 +183,10 @@ class ModelConfig:
         odometry_input: Append the last step's ``pose_delta`` to the map vector, so the
             policy sees directly whether its last action moved it (a blocked robot
             does not move; not in the paper).
+        free_space_input: Directions of the ``free_space`` sensor appended to the map
+            vector (0 = off; a run sets ``EnvConfig.free_space`` to match): how far the
+            body can drive straight each way, read off the depth panorama — the
+            explorer's sense, so a policy can stop pushing into walls (not in the paper).
         log_std_init: Initial log standard deviation of the Gaussian policy.
         per_agent_params: One set of weights per agent slot instead of shared weights.
         max_agents: Number of agent slots when ``per_agent_params`` (ignored otherwise).
@@ -197,6 +206,7 @@ class ModelConfig:
     critic_hidden_size: int = 512
     critic_full_input: bool = False
     odometry_input: bool = False
+    free_space_input: int = 0
     log_std_init: float = -0.5
     per_agent_params: bool = False
     max_agents: int = 4
@@ -204,6 +214,13 @@ class ModelConfig:
     comm: CommConfig = field(default_factory=CommConfig)
     goal_match: MatchConfig = field(default_factory=MatchConfig)
     readout: ReadoutConfig = field(default_factory=ReadoutConfig)
+
+    def __post_init__(self) -> None:
+        if self.free_space_input < 0:
+            raise ValueError(f"free_space_input must be ≥ 0, got {self.free_space_input}")
+        if self.readout.enabled and self.readout.ring and not self.goal_match.enabled:
+            raise ValueError("readout.ring reads the goal matcher's feature columns: "
+                             "enable goal_match too")
 
     @classmethod
     def paper(cls, **overrides: object) -> ModelConfig:
@@ -214,8 +231,8 @@ class ModelConfig:
     def cpu(cls, **overrides: object) -> ModelConfig:
         """Laptop-CPU sizes (small CNN, 3×32×128 panoramas, 96×96 map at 20 cm).
 
-        Also on: goal matching, the perception readout, odometry input, a critic that
-        sees the goal and the map.
+        Also on: goal matching, the perception readout, odometry input, 16 free-space
+        directions, a critic that sees the goal and the map.
         """
         base: dict[str, object] = dict(
             encoder="small", embed_dim=256, panorama_shape=(3, 32, 128),
@@ -224,7 +241,7 @@ class ModelConfig:
                           feature_size=6, hidden=256, encoder_size=32, embed_dim=128),
             comm=CommConfig(query_dim=64, key_dim=64, value_dim=256),
             goal_match=MatchConfig(enabled=True), critic_full_input=True,
-            odometry_input=True, readout=ReadoutConfig(enabled=True),
+            odometry_input=True, readout=ReadoutConfig(enabled=True), free_space_input=16,
         )
         base.update(overrides)
         return cls(**base)  # type: ignore[arg-type]

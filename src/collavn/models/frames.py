@@ -22,7 +22,7 @@ from torch import Tensor, nn
 from collavn.models.config import ModelConfig
 from collavn.models.encoders import make_encoder
 from collavn.models.matching import GoalMatcher
-from collavn.models.readout import PerceptionReadout
+from collavn.models.readout import PerceptionReadout, RingReadout
 
 #: Submodules of :class:`FramePerception` (prefixes of its state-dict keys).
 FRAME_MODULES = ("panorama_encoder", "goal_encoder", "goal_matcher", "readout")
@@ -39,7 +39,8 @@ def frame_spec(cfg: ModelConfig) -> dict[str, Any]:
                            "channels": cfg.goal_match.channels,
                            "scales": list(cfg.goal_match.scales),
                            "output_size": cfg.goal_match.output_size},
-            **({"readout": {"bins": cfg.readout.bins, "hidden": cfg.readout.hidden}}
+            **({"readout": {"bins": cfg.readout.bins, "hidden": cfg.readout.hidden,
+                            **({"ring": True} if cfg.readout.ring else {})}}
                if cfg.readout.enabled else {})}
 
 
@@ -59,8 +60,14 @@ class FramePerception(nn.Module):
         self.pair_goal_size = emb + (0 if self.goal_matcher is None
                                      else self.goal_matcher.output_size)
         r = cfg.readout
-        self.readout = (PerceptionReadout(emb, self.pair_goal_size, r.bins, r.hidden)
-                        if r.enabled else None)
+        self.readout: PerceptionReadout | RingReadout | None = None
+        if r.enabled and r.ring:
+            assert self.goal_matcher is not None  # ModelConfig checks
+            self.readout = RingReadout(self.goal_matcher.ring_channels,
+                                       self.goal_matcher.grid_w, emb, self.pair_goal_size,
+                                       r.bins, r.hidden)
+        elif r.enabled:
+            self.readout = PerceptionReadout(emb, self.pair_goal_size, r.bins, r.hidden)
         self.goal_size = self.pair_goal_size + r.size
 
     def see(self, panorama: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
@@ -69,18 +76,24 @@ class FramePerception(nn.Module):
         ``g`` is the goal embedding, then the match vector (goal matching), then the
         readout's features (perception readout).
         """
-        o, g = self.see_pair(panorama, goal)
+        o, g, ring = self.see_pair(panorama, goal)
         if self.readout is not None:
-            g = torch.cat([g, self.readout.features(o, g)], dim=1)
+            g = torch.cat([g, self.readout.features(o, g, ring)], dim=1)
         return o, g
 
-    def see_pair(self, panorama: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
-        """``o`` and ``g`` without the readout's features (what the readout reads)."""
+    def see_pair(self, panorama: Tensor, goal: Tensor
+                 ) -> tuple[Tensor, Tensor, Tensor | None]:
+        """What the readout reads: ``o``, ``g`` (without the readout's features), ring.
+
+        The ring is the goal matcher's (``None`` without goal matching).
+        """
         o = self.panorama_encoder(panorama)
         g = self.goal_encoder(goal)
+        ring = None
         if self.goal_matcher is not None:
-            g = torch.cat([g, self.goal_matcher(panorama, goal)], dim=1)
-        return o, g
+            match, ring = self.goal_matcher.match(panorama, goal)
+            g = torch.cat([g, match], dim=1)
+        return o, g, ring
 
     def frame_modules(self) -> list[nn.Module]:
         """The submodules named in :data:`FRAME_MODULES` that exist."""

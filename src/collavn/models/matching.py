@@ -45,6 +45,7 @@ class GoalMatcher(nn.Module):
                                  f"for goal matching, got {h}×{w}")
         self.grid_h, self.grid_w = ph // STRIDE, pw // STRIDE
         self.goal_hw = (gh // STRIDE, gw // STRIDE)
+        self.channels = cfg.channels  # learned + pooled RGB
         learned = cfg.channels - 3  # MatchConfig ensures ≥ 1
         self.trunk = nn.Sequential(
             nn.Conv2d(3, learned, 5, 2, 2), nn.ReLU(inplace=True),
@@ -79,7 +80,27 @@ class GoalMatcher(nn.Module):
         Both the template and each panorama window are centred (mean over channels and
         cells) before the cosine, so a uniform brightness offset does not match.
         """
-        pano, tmpl = self.features(panorama, wrap=True), self.features(goal)
+        return self._profile(self.features(panorama, wrap=True), self.features(goal))
+
+    @property
+    def ring_channels(self) -> int:
+        """Channels of :meth:`match`'s ring: every row's features, then the profile."""
+        return self.channels * self.grid_h + len(self.templates)
+
+    def match(self, panorama: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
+        """The match vector ``(B, output_size)`` and the **ring** ``(B, ring_channels, W/4)``.
+
+        The ring is what the panorama shows in each feature column — the features of all
+        its rows (so the height of the floor's edge, i.e. the distance to a wall, is
+        there) — with the goal's similarity profile in that column. It is egocentric like
+        the profile: rolling the panorama by ``k`` feature columns rolls it by ``k``.
+        """
+        pano = self.features(panorama, wrap=True)
+        prof = self._profile(pano, self.features(goal))
+        ring = torch.cat([pano.flatten(1, 2), prof], dim=1)
+        return self.head(prof.flatten(1)), ring
+
+    def _profile(self, pano: Tensor, tmpl: Tensor) -> Tensor:
         b, c = pano.shape[:2]
         out = []
         for h, w in self.templates:
@@ -102,4 +123,4 @@ class GoalMatcher(nn.Module):
 
     def forward(self, panorama: Tensor, goal: Tensor) -> Tensor:
         """``(B, output_size)`` match vector."""
-        return self.head(self.profile(panorama, goal).flatten(1))
+        return self.match(panorama, goal)[0]

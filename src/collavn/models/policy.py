@@ -8,7 +8,8 @@ Observation contract (one dict of batched tensors, ``E`` envs × ``N`` agents; a
   agent's previous frame (x forward, y left, yaw CCW);
 * ``active`` bool ``(E, N)`` — still running; inactive agents neither request nor
   support, their memory is not written and their state is carried unchanged;
-* ``depth`` float ``(E, N, H, W)`` — optional, used iff ``MapConfig.use_depth``.
+* ``depth`` float ``(E, N, H, W)`` — optional, used iff ``MapConfig.use_depth``;
+* ``free_space`` float ``(E, N, D)`` metres — used iff ``ModelConfig.free_space_input``.
 
 ``gt_map`` is never an input: it supervises the map predictor through
 :func:`collavn.models.mapping.map_loss` on ``PolicyStep.map_logits``.
@@ -32,6 +33,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 from torch.distributions import Independent, Normal
 
+from collavn.envs.free_space import FREE_SPACE_RANGE
 from collavn.models.communication import (
     CommProjections,
     Message,
@@ -69,9 +71,10 @@ class AgentTower(FramePerception):
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__(cfg)
         emb, goal = self.embed_size, self.goal_size
-        map_dim = cfg.map.embed_dim + (3 if cfg.odometry_input else 0)
+        map_dim = cfg.map.embed_dim + (3 if cfg.odometry_input else 0) + cfg.free_space_input
         self.odometry_input = cfg.odometry_input
-        self.map_vector_size = map_dim  # S fed to the cores: map embedding + odometry
+        self.free_space_input = cfg.free_space_input
+        self.map_vector_size = map_dim  # S fed to the cores: map + odometry + free space
         self.map_builder = MapBuilder(cfg.map, cfg.panorama_shape)
         self.map_encoder = MapEncoder(cfg.map)
         self.comm = (None if cfg.comm.variant == "none"
@@ -107,14 +110,22 @@ class AgentTower(FramePerception):
         return (self.map_builder.visual(hidden),)
 
     def embed_map(self, window: Tensor, features: Tensor, pose: Tensor, pose_delta: Tensor,
-                  first: Tensor) -> tuple[Tensor]:
-        """The map vector ``(B, map_embed [+ 3 odometry])``.
+                  first: Tensor, free_space: Tensor | None = None) -> tuple[Tensor]:
+        """The map vector ``(B, map_embed [+ 3 odometry] [+ D free space])``.
 
-        From the grid's egocentric window, the feature grid and the pose.
+        From the grid's egocentric window, the feature grid and the pose; free space in
+        metres ``(B, D)`` enters as a fraction of the sensor's range.
         """
         s = self.map_encoder.encode(window, self.map_encoder.feature_window(features, pose))
         if self.odometry_input:  # last step's motion, zero at an episode's first step
             s = torch.cat([s, pose_delta * (~first).to(pose_delta.dtype)[:, None]], dim=1)
+        if self.free_space_input:
+            if free_space is None or free_space.shape[-1] != self.free_space_input:
+                got = None if free_space is None else free_space.shape[-1]
+                raise ValueError(f"the model reads {self.free_space_input} free-space "
+                                 f"directions; the observation has {got} "
+                                 f"(EnvConfig.free_space)")
+            s = torch.cat([s, free_space.to(s.dtype) / FREE_SPACE_RANGE], dim=1)
         return (s,)
 
     def core_inputs(self, o: Tensor, g: Tensor, s: Tensor, omega: Tensor
@@ -283,7 +294,7 @@ class ActorCritic(nn.Module):
 
     def replay_keys(self) -> tuple[str, ...]:
         """Observation entries :meth:`evaluate_actions` needs beside the stored percepts."""
-        keys = ["pose_delta", "active"]
+        keys = ["pose_delta", "active"] + (["free_space"] if self.cfg.free_space_input else [])
         if not self.frames_frozen:
             keys += ["panorama", "goal"]
         if not self.cfg.map.detach:
@@ -394,7 +405,7 @@ class ActorCritic(nn.Module):
             blended.append(f_t)
             features = carry(active[t], f_t, f)
         s = self._over_steps(AgentTower.embed_map, p["map_window"], torch.stack(blended),
-                             p["map_pose"], delta, starts)[0]
+                             p["map_pose"], delta, starts, obs.get("free_space"))[0]
         talk = replace(state, grid=state.grid[:, :, :0], features=state.features[:, :, :0])
         messages, omegas = [], []
         for t in range(steps):  # communication needs no GRU state: all steps first

@@ -69,8 +69,8 @@ class Pretrainer:
         """Total loss of a batch and its parts."""
         p = self.cfg.perception
         t = {k: torch.as_tensor(v) for k, v in batch.items()}
-        o, g = self.frames.see_pair(t["panorama"], t["goal"])
-        parts = losses(self.heads(o, g), targets(t, p.bins, p.max_distance))
+        parts = losses(self.heads(*self.frames.see_pair(t["panorama"], t["goal"])),
+                       targets(t, p.bins, p.max_distance))
         total = torch.stack(list(parts.values())).sum()
         return total, {k: float(v.detach()) for k, v in parts.items()}
 
@@ -97,8 +97,8 @@ class Pretrainer:
         for _ in range(max(1, pairs // p.batch_size)):
             batch = sample_batch(self.val, p.batch_size, p, rng, augment=False)
             t = {k: torch.as_tensor(v) for k, v in batch.items()}
-            o, g = self.frames.see_pair(t["panorama"], t["goal"])
-            pred, target = self.heads(o, g), targets(t, p.bins, p.max_distance)
+            pred = self.heads(*self.frames.see_pair(t["panorama"], t["goal"]))
+            target = targets(t, p.bins, p.max_distance)
             loss.append(float(torch.stack(list(losses(pred, target).values())).sum()))
             for k, v in accuracies(pred, target).items():
                 right[k].append(float(v))

@@ -12,14 +12,25 @@ from torch import Tensor
 POLICY_KEYS = ("panorama", "goal", "pose_delta", "active")
 
 
-def policy_keys(use_depth: bool) -> tuple[str, ...]:
-    """Observation entries given to the model."""
-    return (*POLICY_KEYS, "depth") if use_depth else POLICY_KEYS
+def policy_keys(use_depth: bool, free_space: bool = False) -> tuple[str, ...]:
+    """Observation entries given to the model (``depth`` for the map, ``free_space``)."""
+    return (*POLICY_KEYS, *(("depth",) if use_depth else ()),
+            *(("free_space",) if free_space else ()))
 
 
 def obs_to_torch(obs: Mapping[str, np.ndarray], keys: tuple[str, ...],
                  device: torch.device | str) -> dict[str, Tensor]:
-    """The model's entries of a numpy observation as tensors on ``device`` (no copy on CPU)."""
+    """The model's entries of a numpy observation as tensors on ``device`` (no copy on CPU).
+
+    Raises:
+        KeyError: naming the entries the model reads that the observation lacks (and
+            the ``EnvConfig`` field that turns them on).
+    """
+    missing = [k for k in keys if k not in obs]
+    if missing:
+        raise KeyError(f"the policy reads {', '.join(missing)}, which the observation lacks; "
+                       f"make the env with EnvConfig({', '.join(f'{k}=…' for k in missing)}) "
+                       f"(load_policy returns the overrides a checkpoint needs)")
     return {k: torch.as_tensor(obs[k]).to(device) for k in keys}
 
 

@@ -103,9 +103,11 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
 
 
 #: Config fields added after format 3 (dotted paths), with the value meaning "as before":
-#: no readout, every PPO epoch.
+#: no readout (or the pooled one), every PPO epoch.
 LATER_FIELDS: dict[str, Any] = {
     "model.readout": to_dict(ReadoutConfig(enabled=False)),
+    "model.readout.ring": False,
+    "model.free_space_input": 0,
     "ppo.target_kl": 0.0,
 }
 
@@ -191,7 +193,7 @@ class CheckpointPolicy:
             raise ValueError(f"block_envs must be ≥ 1, got {block_envs}")
         self.block_envs = block_envs
         self.model = model.eval()
-        self.keys = policy_keys(model.cfg.map.use_depth)
+        self.keys = policy_keys(model.cfg.map.use_depth, model.cfg.free_space_input > 0)
         self.stochastic = stochastic
         self.random = EpisodeRandom(seed)
         self.comm = CommStats()
@@ -264,4 +266,6 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
                                  "goal_size": model_cfg.goal_shape[-1]}
     if model_cfg.map.use_depth:
         overrides["depth"] = True
+    if model_cfg.free_space_input:
+        overrides["free_space"] = model_cfg.free_space_input
     return CheckpointPolicy(model, stochastic, seed), overrides

@@ -39,8 +39,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from collavn.envs.free_space import free_runs, panorama_azimuths
 from collavn.policies.base import CommStats
 from collavn.simulation.kinematics import AgentParams
+
+__all__ = ["ExplorerPolicy", "ExplorerState", "free_runs", "panorama_azimuths"]
 
 
 class ExplorerPolicy:
@@ -141,54 +144,3 @@ class ExplorerState:
 
     rngs: list[list[np.random.Generator]]
     expected: np.ndarray
-
-
-def panorama_azimuths(width: int) -> np.ndarray:
-    """``(W,)`` azimuth of each column relative to the heading (CCW positive)."""
-    return 2 * np.pi * (0.5 - np.arange(width) / width)
-
-
-def obstacle_points(depth: np.ndarray, camera_height: float = 0.9, fov: float = np.pi / 2,
-                    band: tuple[float, float] = (0.05, 1.0)) -> np.ndarray:
-    """The nearest obstacle hit of each panorama column, ``(K, 2)`` (forward, left) metres.
-
-    Only the nearest hit of a column matters for :func:`free_runs`: along one azimuth a
-    nearer point blocks every direction a farther one does, and sooner.
-
-    Args:
-        depth: ``(H, W)`` distance along each ray in metres (0 = no hit).
-        camera_height: Camera height above the floor, metres.
-        fov: Vertical field of view, radians.
-        band: Heights above the floor between which a hit is an obstacle.
-    """
-    h, w = depth.shape
-    elevation = (fov / 2) * (1 - (2 * np.arange(h) + 1) / h)
-    height = camera_height + depth * np.sin(elevation)[:, None]
-    horizontal = depth * np.cos(elevation)[:, None]
-    hit = (depth > 0) & (height > band[0]) & (height < band[1])
-    nearest = np.where(hit, horizontal, np.inf).min(axis=0)
-    seen = np.isfinite(nearest)
-    r, a = nearest[seen], panorama_azimuths(w)[seen]
-    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
-
-
-def free_runs(depth: np.ndarray, radius: float, camera_height: float = 0.9,
-              fov: float = np.pi / 2, band: tuple[float, float] = (0.05, 1.0),
-              horizon: float = 10.0) -> np.ndarray:
-    """``(W,)`` metres a disc of ``radius`` can drive along each column's direction.
-
-    A straight run along direction ``θ`` ends where the disc first touches an obstacle
-    point: for a point at ``(along, across)`` in the rotated frame, with
-    ``|across| < radius``, contact happens after ``along − √(radius² − across²)``.
-    Directions with no obstacle within ``horizon`` metres get ``horizon``.
-    """
-    points = obstacle_points(depth, camera_height, fov, band)
-    theta = panorama_azimuths(depth.shape[1])
-    c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
-    along = c * points[:, 0] + s * points[:, 1]  # (W, K)
-    across = -s * points[:, 0] + c * points[:, 1]
-    inside = np.abs(across) < radius
-    contact = along - np.sqrt(np.maximum(radius**2 - across**2, 0.0))
-    blocking = inside & (along > 0)  # points beside or behind do not stop a forward run
-    run = np.where(blocking, contact, horizon).min(axis=1, initial=horizon)
-    return np.maximum(run, 0.0)

@@ -76,6 +76,10 @@ CPU_REASONS: dict[str, str] = {
                                "V sees only (O, ω), which cannot tell how far the goal is",
     "model.odometry_input": "the last step's pose change is a direct policy input, so a "
                             "robot pushing against a wall can tell that it is not moving",
+    "model.free_space_input": "16 free-space directions read off the depth panorama (the "
+                              "explorer's sense, collavn.envs.free_space) join the map "
+                              "vector; il on val40: 0.445 → 0.485 easy, 0.210 → 0.278 "
+                              "medium SR",
     "model.goal_match": "goal matching (collavn.models.matching): the goal image compared "
                         "with the panorama at every azimuth and 3 scales, instead of a GRU "
                         "learning the comparison from two pooled embeddings",

@@ -98,11 +98,12 @@ class Run:
 def env_config(cfg: TrainConfig) -> EnvConfig:
     """``cfg.env`` plus what the run needs: depth and gt maps for the map, oracle info.
 
-    ``depth``, ``gt_map``, ``gt_map_size`` and ``privileged`` are set here, from the
-    model and the method, whatever ``cfg.env`` says.
+    ``depth``, ``free_space``, ``gt_map``, ``gt_map_size`` and ``privileged`` are set here,
+    from the model and the method, whatever ``cfg.env`` says.
     """
     m = cfg.model.map
-    return replace(cfg.env, depth=m.use_depth, gt_map=cfg.mapping.enabled,
+    return replace(cfg.env, depth=m.use_depth, free_space=cfg.model.free_space_input,
+                   gt_map=cfg.mapping.enabled,
                    gt_map_size=round(m.local_size * m.resolution / 0.1),
                    privileged=cfg.method_spec.imitation)
 
@@ -239,7 +240,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
         The rollout (with ``last_value`` bootstrapped) and collection statistics.
     """
     cfg, model, device = run.cfg, run.model, run.device
-    keys = policy_keys(cfg.model.map.use_depth)
+    keys = policy_keys(cfg.model.map.use_depth, cfg.model.free_space_input > 0)
     assert run.state is not None
     obs_t = obs_to_torch(run.obs, keys, device)
     rollout: Rollout | None = None
