@@ -229,9 +229,11 @@ def test_random_evaluation_does_not_depend_on_num_envs(door_scene, episodes):
 
 
 def test_stochastic_checkpoint_evaluation_does_not_depend_on_num_envs(door_scene, episodes):
-    cfg = tiny_config("ours")
+    # a silent policy: with communication on, blocks are exact only to ~1e-9 (known;
+    # tests/test_evaluation.py::test_a_communicating_policy_scores_the_same_for_any_num_envs)
+    cfg = tiny_config("no-com")
     env = dataclasses.replace(SMALL, panorama_width=64, panorama_height=16, goal_size=16,
-                              max_steps=12)
+                              max_steps=12, free_space=cfg.model.free_space_input)
     torch.manual_seed(0)
     model = ActorCritic(cfg.model)
     runs = [evaluate(CheckpointPolicy(model, stochastic=True, seed=4), door_scene,
