@@ -401,3 +401,64 @@ def test_configs_saved_with_the_retired_gate_field_are_refused_by_name():
         from_dict(ModelConfig, old, "")
     with pytest.raises(ValueError, match="threshold"):
         CommConfig(threshold=1.0)
+
+
+def _reference_rounds(model, o, s, state, starts, active):
+    """The step-by-step ring buffer (write_memory), one step at a time, as a reference."""
+    from collavn.models.communication import pooled_past_values
+
+    tower, cfg = model.towers[0], model.cfg.comm
+    keys, values = state.mem_keys, state.mem_values
+    count, steps, omegas = state.mem_count, state.steps, []
+    for t in range(starts.shape[0]):
+        reset = starts[t]
+        keys = torch.where(reset[..., None, None], 0.0, keys)
+        values = torch.where(reset[..., None, None], 0.0, values)
+        count = torch.where(reset, 0, count)
+        steps = torch.where(reset, 0, steps)
+        x = torch.cat([o[t], s[t]], dim=-1).flatten(0, 1)
+        key, value = (v.view(*starts.shape[1:], -1) for v in tower.comm.key_value(x))
+        write = active[t] & (steps % cfg.store_interval == 0)
+        keys, values, count, slot = write_memory(keys, values, count, key, value, write)
+        stored = memory_mask(count, keys.shape[2])
+        pooled = pooled_past_values(values, stored & ~slot).flatten(0, 1)
+        query, bias = tower.comm.query_psi(x, pooled)
+        msg = match_and_select(
+            query.view(*starts.shape[1:], -1), bias.view(starts.shape[1:]),
+            torch.cat([keys, key.unsqueeze(2)], dim=2),
+            torch.cat([values, value.unsqueeze(2)], dim=2),
+            torch.cat([stored, ~write.unsqueeze(-1)], dim=2), active[t], cfg)
+        omegas.append(msg.omega)
+        steps = steps + active[t].long()
+    return torch.stack(omegas), keys, values, count, steps
+
+
+@pytest.mark.parametrize("slots,interval", [(3, 1), (2, 2), (80, 1)])
+def test_a_sequence_matches_the_step_by_step_ring_buffer(slots, interval):
+    torch.manual_seed(slots + interval)
+    model = ActorCritic(tiny(memory_slots=slots, store_interval=interval)).eval()
+    t_len, e, n = 9, 3, 3
+    emb, sdim = model.towers[0].embed_size, model.towers[0].map_vector_size
+    o, s = torch.randn(t_len, e, n, emb), torch.randn(t_len, e, n, sdim)
+    starts = torch.zeros(t_len, e, n, dtype=torch.bool)
+    starts[0] = True
+    starts[5, 1] = True  # env 1 starts a new episode mid-sequence
+    active = torch.ones(t_len, e, n, dtype=torch.bool)
+    active[4:, 2, 0] = False  # agent 0 of env 2 finishes
+    state = model.initial_state(e, n)
+    with torch.no_grad():
+        ref, keys, values, count, steps = _reference_rounds(model, o, s, state, starts, active)
+        _, omega, after = model._communicate(o, s, state, starts, active)
+        assert torch.allclose(omega, ref, atol=1e-6) and ref.abs().sum() > 0
+        assert torch.allclose(after.mem_keys, keys, atol=1e-6)
+        assert torch.allclose(after.mem_values, values, atol=1e-6)
+        assert torch.equal(after.mem_count, count) and torch.equal(after.steps, steps)
+        # one step at a time (collection) gives bit-identical messages (PPO's replay)
+        one, state1 = [], state
+        for t in range(t_len):
+            _, w, state1 = model._communicate(o[t:t + 1], s[t:t + 1], state1,
+                                              starts[t:t + 1], active[t:t + 1])
+            one.append(w[0])
+    assert torch.equal(torch.stack(one), omega)
+    assert torch.equal(state1.mem_values, after.mem_values)
+    assert (count.max() > slots) == (slots < 80)  # the small buffers wrapped around

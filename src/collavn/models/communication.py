@@ -173,7 +173,7 @@ def write_memory(keys: Tensor, values: Tensor, count: Tensor, new_key: Tensor,
 def pooled_past_values(values: Tensor, mask: Tensor) -> Tensor:
     """Masked mean over slots: ``(E, N, T, dv)``, ``(E, N, T)`` → ``(E, N, dv)``."""
     w = mask.to(values.dtype)
-    total = (values * w.unsqueeze(-1)).sum(dim=2)
+    total = (w.unsqueeze(-2) @ values).squeeze(-2)  # a batched (1 × T) @ (T × dv)
     return total / w.sum(dim=2, keepdim=True).clamp(min=1.0)
 
 
@@ -264,3 +264,87 @@ def silent_message(active: Tensor, value_dim: int, dtype: torch.dtype) -> Messag
     return Message(torch.zeros(e, n, value_dim, dtype=dtype, device=active.device), zeros,
                    zeros, torch.zeros_like(active, dtype=torch.bool), zeros.bool(),
                    torch.zeros(e, n, device=active.device))
+
+
+@dataclass(frozen=True)
+class MemoryPlan:
+    """Where every step of a sequence reads and writes the agents' memories.
+
+    The memory is a function of the keys and values of earlier steps and of integer
+    bookkeeping only (episode starts, active flags, the store schedule), so a sequence of
+    ``T`` steps needs no step-by-step state: each step's memory *after its write* is a
+    gather from a source table ``[memory before the sequence (S slots) | this sequence's
+    entries (T) | a zero row]`` (:meth:`gather`). It holds exactly what the
+    step-by-step ring buffer of :func:`write_memory` would hold, slot for slot.
+
+    Attributes:
+        index: ``(T, E, N, S)`` int64, row of the source table in each slot after step t.
+        write: ``(T, E, N)`` bool, the step's entry is stored.
+        count: ``(T, E, N)`` int64, writes since the episode start after step t.
+        slot: ``(T, E, N, S)`` bool, one-hot of the slot written at step t.
+        steps: ``(E, N)`` int64, steps since the episode start after the last step.
+    """
+
+    index: Tensor
+    write: Tensor
+    count: Tensor
+    slot: Tensor
+    steps: Tensor
+
+    def gather(self, before: Tensor, entries: Tensor) -> Tensor:
+        """What each step matches: its memory after the write, then its own entry.
+
+        ``(E, N, S, d)`` memory before, ``(T, E, N, d)`` entries → ``(T, E, N, S + 1, d)``
+        (slot ``S`` holds step t's own entry, stored or not). One row gather, no copies
+        of whole memories per step.
+        """
+        t, e, n, s = self.index.shape
+        d = entries.shape[-1]
+        table = torch.cat([before, entries.permute(1, 2, 0, 3), entries.new_zeros(e, n, 1, d)],
+                          dim=2)  # (E, N, S + T + 1, d)
+        rows = table.shape[2]
+        own = (s + torch.arange(t, device=table.device)).view(t, 1, 1, 1).expand(t, e, n, 1)
+        base = torch.arange(e * n, device=table.device).view(1, e, n, 1) * rows
+        index = torch.cat([self.index, own], dim=3) + base
+        return table.reshape(e * n * rows, d).index_select(0, index.flatten()).view(
+            t, e, n, s + 1, d)
+
+
+def plan_memory(count: Tensor, steps: Tensor, starts: Tensor, active: Tensor, slots: int,
+                store_interval: int, writes: bool) -> MemoryPlan:
+    """The :class:`MemoryPlan` of ``T`` steps from the state before them.
+
+    Args:
+        count: ``(E, N)`` writes since the episode start, before the first step.
+        steps: ``(E, N)`` steps since the episode start, before the first step.
+        starts: ``(T, E, N)`` bool, the step begins an episode (its memory is cleared
+            first).
+        active: ``(T, E, N)`` bool; an inactive agent neither writes nor counts a step.
+        slots: Ring-buffer slots S (0: nothing is ever stored).
+        store_interval: Store every this many steps.
+        writes: The variant stores entries at all (``memory``).
+    """
+    t_len = starts.shape[0]
+    zero_row = slots + t_len
+    current = torch.arange(slots, device=count.device).expand(*count.shape, slots).clone()
+    count, steps = count.clone(), steps.clone()
+    index, write_all, count_all, slot_all = [], [], [], []
+    for t in range(t_len):
+        reset = starts[t]
+        count = torch.where(reset, torch.zeros_like(count), count)
+        steps = torch.where(reset, torch.zeros_like(steps), steps)
+        current = torch.where(reset[..., None], torch.full_like(current, zero_row), current)
+        write = active[t] & (steps % store_interval == 0) & (writes and slots > 0)
+        slot = torch.zeros_like(current, dtype=torch.bool)
+        if slots:
+            slot = (torch.arange(slots, device=count.device) == (count % slots)[..., None]
+                    ) & write[..., None]
+        current = torch.where(slot, torch.full_like(current, slots + t), current)
+        count = count + write.long()
+        steps = steps + active[t].long()
+        index.append(current)
+        write_all.append(write)
+        count_all.append(count)
+        slot_all.append(slot)
+    return MemoryPlan(torch.stack(index), torch.stack(write_all), torch.stack(count_all),
+                      torch.stack(slot_all), steps)

@@ -39,9 +39,9 @@ from collavn.models.communication import (
     Message,
     match_and_select,
     memory_mask,
+    plan_memory,
     pooled_past_values,
     silent_message,
-    write_memory,
 )
 from collavn.models.config import ModelConfig
 from collavn.models.frames import FramePerception
@@ -406,17 +406,10 @@ class ActorCritic(nn.Module):
             features = carry(active[t], f_t, f)
         s = self._over_steps(AgentTower.embed_map, p["map_window"], torch.stack(blended),
                              p["map_pose"], delta, starts, obs.get("free_space"))[0]
-        talk = replace(state, grid=state.grid[:, :, :0], features=state.features[:, :, :0])
-        messages, omegas = [], []
-        for t in range(steps):  # communication needs no GRU state: all steps first
-            talk = talk.reset(starts[t])
-            message, keys, vals, count = self._communicate(p["o"][t], s[t], talk, active[t])
-            talk = replace(talk, mem_keys=keys, mem_values=vals, mem_count=count,
-                           steps=talk.steps + 1).where(active[t], talk)
-            messages.append(message)
-            omegas.append(message.omega)
+        # communication needs no GRU state: every step at once
+        messages, omega, talk = self._communicate(p["o"], s, state, starts, active)
         actor_in, critic_in = self._over_steps(AgentTower.core_inputs, p["o"], p["g"], s,
-                                               torch.stack(omegas))
+                                               omega)
         actor_h, critic_h, actor_hs, critic_hs = state.actor_h, state.critic_h, [], []
         for t in range(steps):
             a_h, c_h = cleared(actor_h, t), cleared(critic_h, t)
@@ -440,28 +433,53 @@ class ActorCritic(nn.Module):
                                     for a in args])
         return tuple(out.reshape(steps, e, *out.shape[1:]) for out in outs)
 
-    def _communicate(self, o: Tensor, s: Tensor, state: AgentState,
-                     active: Tensor) -> tuple[Message, Tensor, Tensor, Tensor]:
-        """Request, store, match and select (see :mod:`collavn.models.communication`)."""
+    def _communicate(self, o: Tensor, s: Tensor, state: AgentState, starts: Tensor,
+                     active: Tensor) -> tuple[list[Message], Tensor, AgentState]:
+        """Request, store, match and select for ``T`` steps (``(T, E, N, ...)`` inputs).
+
+        See :mod:`collavn.models.communication`. Nothing here is recurrent but the
+        memory, and the memory holds only earlier steps' keys and values: those are
+        computed for all steps at once, :func:`plan_memory` says which of them (or of the
+        memory before the sequence) fill every slot at every step, and all steps are
+        matched as one batch. One step at collection and the same step replayed by PPO
+        go through the same operations (the first epoch's log-probs are exact).
+
+        Returns:
+            Each step's message, ω ``(T, E, N, value_dim)``, and ``state`` with the
+            memory, counts and steps after the last step.
+        """
         cfg = self.cfg.comm
+        steps, e, n = starts.shape
+        plan = plan_memory(state.mem_count, state.steps, starts, active,
+                           state.mem_keys.shape[2], cfg.store_interval,
+                           cfg.variant == "memory")
         if cfg.variant == "none":
-            msg = silent_message(active, 0, o.dtype)
-            return msg, state.mem_keys, state.mem_values, state.mem_count
-        x = torch.cat([o, s], dim=-1)
-        key, value = self._dispatch(lambda t, x_: t.comm.key_value(x_), x)
-        write = active & (state.steps % cfg.store_interval == 0)
-        if cfg.variant != "memory":
-            write = torch.zeros_like(write)
-        keys, values, count, slot = write_memory(
-            state.mem_keys, state.mem_values, state.mem_count, key, value, write)
-        stored = memory_mask(count, keys.shape[2])
-        pooled = pooled_past_values(values, stored & ~slot)
-        query, bias = self._dispatch(lambda t, x_, p_: t.comm.query_psi(x_, p_), x, pooled)
-        entries_k = torch.cat([keys, key.unsqueeze(2)], dim=2)
-        entries_v = torch.cat([values, value.unsqueeze(2)], dim=2)
-        entry_mask = torch.cat([stored, ~write.unsqueeze(-1)], dim=2)
-        msg = match_and_select(query, bias, entries_k, entries_v, entry_mask, active, cfg)
-        return msg, keys, values, count
+            messages = [silent_message(active[t], 0, o.dtype) for t in range(steps)]
+            omega = o.new_zeros(steps, e, n, 0)
+        else:
+            x = torch.cat([o, s], dim=-1)
+            key, value = self._over_steps(lambda t, x_: t.comm.key_value(x_), x)
+            # (T, E, N, S + 1, d): the memory after each step's write, then its own entry
+            keys = plan.gather(state.mem_keys, key)
+            values = plan.gather(state.mem_values, value)
+            slots = keys.shape[3] - 1
+            stored = memory_mask(plan.count, slots)
+            own = torch.zeros_like(plan.write).unsqueeze(-1)  # (T, E, N, 1) bool
+            past = torch.cat([stored & ~plan.slot, own], dim=3)
+            pooled = pooled_past_values(values.flatten(0, 1), past.flatten(0, 1))
+            query, bias = self._over_steps(lambda t, x_, p_: t.comm.query_psi(x_, p_), x,
+                                           pooled.reshape(steps, e, *pooled.shape[1:]))
+            matched = torch.cat([stored, ~plan.write.unsqueeze(-1)], dim=3)
+            msg = match_and_select(query.flatten(0, 1), bias.flatten(0, 1),
+                                   keys.flatten(0, 1), values.flatten(0, 1),
+                                   matched.flatten(0, 1), active.flatten(0, 1), cfg)
+            parts = [f.reshape(steps, e, *f.shape[1:]).unbind(0) for f in (
+                msg.omega, msg.scores, msg.gates, msg.self_open, msg.links, msg.bytes_sent)]
+            messages = [Message(*fields) for fields in zip(*parts, strict=True)]
+            omega = msg.omega.reshape(steps, e, n, -1)
+            state = replace(state, mem_keys=keys[-1, :, :, :slots],
+                            mem_values=values[-1, :, :, :slots])
+        return messages, omega, replace(state, mem_count=plan.count[-1], steps=plan.steps)
 
     def _dispatch(self, fn: Callable[..., tuple[Tensor, ...]],
                   *args: Tensor | None) -> tuple[Tensor, ...]:
