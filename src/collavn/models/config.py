@@ -37,6 +37,9 @@ class MapConfig:
         encoder_size: Cells per side of the egocentric window the map encoder sees;
             the window covers the whole map extent, rotated so the heading is up.
         embed_dim: Size of the map vector given to the policy.
+        encoder_channels: Channels of the map encoder's three stride-2 convolutions over
+            the egocentric window. The policy loss trains them, so every PPO epoch runs
+            them forward and backward over every stored step.
         detach: Stop policy gradients at the local-map predictor (the paper trains the
             occupancy part of F_map only with its supervised loss). The visual-feature
             projection after it always learns from the policy loss.
@@ -55,8 +58,12 @@ class MapConfig:
     encoder_size: int = 64
     embed_dim: int = 256
     detach: bool = True
+    encoder_channels: tuple[int, int, int] = (32, 64, 64)
 
     def __post_init__(self) -> None:
+        if len(self.encoder_channels) != 3 or min(self.encoder_channels) < 1:
+            raise ValueError("encoder_channels must be three positive channel counts, got "
+                             f"{self.encoder_channels}")
         if self.local_size % 8 or self.encoder_size % 8:
             raise ValueError("local_size and encoder_size must be multiples of 8")
         if self.size < self.local_size or self.resolution <= 0:
@@ -238,7 +245,8 @@ class ModelConfig:
             encoder="small", embed_dim=256, panorama_shape=(3, 32, 128),
             goal_shape=(3, 32, 32), hidden_size=256, critic_hidden_size=128,
             map=MapConfig(size=96, resolution=0.2, local_size=32, feature_channels=32,
-                          feature_size=6, hidden=256, encoder_size=32, embed_dim=128),
+                          feature_size=6, hidden=256, encoder_size=32, embed_dim=128,
+                          encoder_channels=(16, 32, 32)),
             comm=CommConfig(query_dim=64, key_dim=64, value_dim=256),
             goal_match=MatchConfig(enabled=True), critic_full_input=True,
             odometry_input=True, readout=ReadoutConfig(enabled=True), free_space_input=16,

@@ -332,11 +332,12 @@ class MapEncoder(nn.Module):
         super().__init__()
         self.cfg = cfg
         k = cfg.encoder_size // 8
+        c1, c2, c3 = cfg.encoder_channels
         self.grid_net = nn.Sequential(
-            nn.Conv2d(MAP_CHANNELS, 32, 3, 2, 1), nn.ReLU(),
-            nn.Conv2d(32, 64, 3, 2, 1), nn.ReLU(),
-            nn.Conv2d(64, 64, 3, 2, 1), nn.ReLU(), nn.Flatten(),
-            nn.Linear(64 * k * k, cfg.embed_dim), nn.ReLU())
+            nn.Conv2d(MAP_CHANNELS, c1, 3, 2, 1), nn.ReLU(),
+            nn.Conv2d(c1, c2, 3, 2, 1), nn.ReLU(),
+            nn.Conv2d(c2, c3, 3, 2, 1), nn.ReLU(), nn.Flatten(),
+            nn.Linear(c3 * k * k, cfg.embed_dim), nn.ReLU())
         self.feature_net = nn.Sequential(
             nn.Conv2d(cfg.feature_channels, 32, 1), nn.ReLU(), nn.Flatten(),
             nn.Linear(32 * cfg.feature_size ** 2, cfg.embed_dim), nn.ReLU())

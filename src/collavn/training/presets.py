@@ -95,8 +95,11 @@ CPU_REASONS: dict[str, str] = {
     "model.map.feature_channels": "32 visual-feature channels (not 256) on the coarse grid",
     "model.map.feature_size": "a 6×6 feature grid over 19.2 m (3.2 m cells, the paper's "
                               "3 m grid)",
-    "model.map.hidden": "128-unit predictor bottleneck (not 512)",
+    "model.map.hidden": "256-unit predictor bottleneck (not 512)",
     "model.map.embed_dim": "128-d map vector (not 256)",
+    "model.map.encoder_channels": "16/32/32 map-encoder channels (not 32/64/64): every PPO "
+                                  "epoch runs it over every stored step; at 32/64/64 it was "
+                                  "~45 % of a no-com update",
     "model.comm.query_dim": "64-d queries and keys, 256-d values (not 256/256/2048), in "
                             "proportion to the 256-d embeddings",
     "model.comm.key_dim": "see model.comm.query_dim",
