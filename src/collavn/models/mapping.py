@@ -33,7 +33,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from collavn.models.config import MapConfig
-from collavn.models.encoders import make_encoder
+from collavn.models.encoders import channels_last, make_encoder
 
 MAP_CHANNELS = 4  # obstacle, explored, trajectory, current location
 
@@ -360,7 +360,7 @@ class MapEncoder(nn.Module):
 
     def encode(self, grid_window: Tensor, feature_window: Tensor) -> Tensor:
         """The trained part: the two egocentric windows → ``(B, embed_dim)``."""
-        return self.out(torch.cat([self.grid_net(grid_window),
+        return self.out(torch.cat([self.grid_net(channels_last(grid_window)),
                                    self._feature_vector(feature_window)], dim=1))
 
     def _feature_vector(self, window: Tensor) -> Tensor:
