@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from collavn.models.config import MatchConfig
-from collavn.models.encoders import normalise_rgb
+from collavn.models.encoders import channels_last, normalise_rgb
 
 STRIDE = 4
 
@@ -68,10 +68,10 @@ class GoalMatcher(nn.Module):
         """
         x = normalise_rgb(images[:, :3])
         if not wrap:
-            return torch.cat([self.trunk(x), F.avg_pool2d(x, STRIDE)], dim=1)
+            return torch.cat([self.trunk(channels_last(x)), F.avg_pool2d(x, STRIDE)], dim=1)
         pad = 2 * STRIDE  # ≥ the trunk's reach; a whole number of feature columns
         x = torch.cat([x[..., -pad:], x, x[..., :pad]], dim=-1)
-        feats = torch.cat([self.trunk(x), F.avg_pool2d(x, STRIDE)], dim=1)
+        feats = torch.cat([self.trunk(channels_last(x)), F.avg_pool2d(x, STRIDE)], dim=1)
         return feats[..., pad // STRIDE:-(pad // STRIDE)]
 
     def profile(self, panorama: Tensor, goal: Tensor) -> Tensor:
