@@ -405,19 +405,22 @@ class ActorCritic(nn.Module):
                 grid, pose = kept(t, grid_t, grid), kept(t, pose_t, pose)
             for key, parts in zip(MAP_TRACK, zip(*tracked, strict=True), strict=True):
                 p[key] = torch.stack(parts)
-        visual = self._over_steps(AgentTower.map_visual, p["map_hidden"])[0]
+        # per-step slices by unbind: indexing [t] in a loop would make autograd add a
+        # full-size zero tensor per step in the backward pass (O(T²) memory traffic)
+        visual = self._over_steps(AgentTower.map_visual, p["map_hidden"])[0].unbind(0)
+        seen_t = p["map_seen"].unbind(0)
         features, blended = state.features, []
         for t in range(steps):
             f = cleared(features, t)
-            f_t = blend_features(f, p["map_seen"][t], visual[t])
+            f_t = blend_features(f, seen_t[t], visual[t])
             blended.append(f_t)
             features = kept(t, f_t, f)
         s = self._over_steps(AgentTower.embed_map, p["map_window"], torch.stack(blended),
                              p["map_pose"], delta, starts, obs.get("free_space"))[0]
         # communication needs no GRU state: every step at once
         messages, omega, talk = self._communicate(p["o"], s, state, starts, active)
-        actor_in, critic_in = self._over_steps(AgentTower.core_inputs, p["o"], p["g"], s,
-                                               omega)
+        actor_in, critic_in = (x.unbind(0) for x in self._over_steps(
+            AgentTower.core_inputs, p["o"], p["g"], s, omega))
         actor_h, critic_h, actor_hs, critic_hs = state.actor_h, state.critic_h, [], []
         for t in range(steps):
             a_h, c_h = cleared(actor_h, t), cleared(critic_h, t)
