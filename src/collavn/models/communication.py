@@ -149,6 +149,9 @@ def write_memory(keys: Tensor, values: Tensor, count: Tensor, new_key: Tensor,
                  new_value: Tensor, write: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Append one entry per agent to a ring buffer (overwriting the oldest when full).
 
+    The step-by-step definition of the memory; the model computes whole sequences with
+    :func:`plan_memory`, which reproduces it slot for slot (tested against this).
+
     Args:
         keys: ``(E, N, T, dk)`` stored keys.
         values: ``(E, N, T, dv)`` stored values.
