@@ -98,8 +98,8 @@ CPU_REASONS: dict[str, str] = {
     "model.map.hidden": "256-unit predictor bottleneck (not 512)",
     "model.map.embed_dim": "128-d map vector (not 256)",
     "model.map.encoder_channels": "16/32/32 map-encoder channels (not 32/64/64): every PPO "
-                                  "epoch runs it over every stored step; at 32/64/64 it was "
-                                  "~45 % of a no-com update",
+                                  "epoch runs it over every stored step; at 32/64/64 its "
+                                  "convolutions were 43 % of a no-com update (profiled)",
     "model.comm.query_dim": "64-d queries and keys, 256-d values (not 256/256/2048), in "
                             "proportion to the 256-d embeddings",
     "model.comm.key_dim": "see model.comm.query_dim",
