@@ -229,3 +229,16 @@ def test_map_feature_channels_learn_from_the_policy_loss():
         assert not torch.equal(old, new)
     for old, new in zip(predictor, builder.predictor.parameters(), strict=True):
         assert torch.equal(old, new)  # the predictor learns from map_loss only
+
+
+def test_map_encoder_widths_are_checked_and_used():
+    with pytest.raises(ValueError, match="encoder_channels"):
+        MapConfig(encoder_channels=(16, 32))  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="encoder_channels"):
+        MapConfig(encoder_channels=(16, 0, 32))
+    enc = MapEncoder(MapConfig(size=32, local_size=16, encoder_size=16, feature_channels=4,
+                               feature_size=4, embed_dim=8, encoder_channels=(3, 5, 7)))
+    convs = [m for m in enc.grid_net if isinstance(m, torch.nn.Conv2d)]
+    assert [c.out_channels for c in convs] == [3, 5, 7]
+    out = enc.encode(torch.rand(2, 4, 16, 16), torch.rand(2, 4, 4, 4))
+    assert out.shape == (2, 8)
