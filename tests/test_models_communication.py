@@ -5,13 +5,13 @@ import torch
 import torch.nn.functional as F
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from torch import Tensor
 
 from collavn.models import ActorCritic, CommConfig, MapConfig, ModelConfig
 from collavn.models.communication import (
     communication_counts,
     match_and_select,
     memory_mask,
-    write_memory,
 )
 
 torch.set_num_threads(1)
@@ -37,6 +37,34 @@ def observations(e: int, n: int, seed: int, shape=(16, 64), goal=(16, 16)):
         pose_delta=torch.randn(e, n, 3, generator=g) * 0.3,
         free_space=torch.rand(e, n, 16, generator=g) * 4.0,  # read iff free_space_input
         active=torch.ones(e, n, dtype=torch.bool))
+
+
+def write_memory(keys: Tensor, values: Tensor, count: Tensor, new_key: Tensor,
+                 new_value: Tensor, write: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Append one entry per agent to a ring buffer (overwriting the oldest when full).
+
+    The step-by-step definition of the memory, the reference the model's
+    :func:`~collavn.models.communication.plan_memory` is tested against.
+
+    Args:
+        keys: ``(E, N, T, dk)`` stored keys.
+        values: ``(E, N, T, dv)`` stored values.
+        count: ``(E, N)`` int64 writes since the episode start.
+        new_key: ``(E, N, dk)``.
+        new_value: ``(E, N, dv)``.
+        write: ``(E, N)`` bool, which agents store this step.
+
+    Returns:
+        New keys, values, count and the ``(E, N, T)`` bool one-hot of the written slot.
+    """
+    slots = keys.shape[2]
+    if slots == 0:
+        return keys, values, count, torch.zeros_like(keys[..., 0], dtype=torch.bool)
+    idx = torch.arange(slots, device=count.device)
+    slot = (idx == (count % slots).unsqueeze(-1)) & write.unsqueeze(-1)
+    keys = torch.where(slot.unsqueeze(-1), new_key.unsqueeze(2), keys)
+    values = torch.where(slot.unsqueeze(-1), new_value.unsqueeze(2), values)
+    return keys, values, count + write.long(), slot
 
 
 def along_query(z: torch.Tensor) -> torch.Tensor:

@@ -145,34 +145,6 @@ def memory_mask(count: Tensor, slots: int) -> Tensor:
     return idx < count.clamp(max=slots).unsqueeze(-1)
 
 
-def write_memory(keys: Tensor, values: Tensor, count: Tensor, new_key: Tensor,
-                 new_value: Tensor, write: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Append one entry per agent to a ring buffer (overwriting the oldest when full).
-
-    The step-by-step definition of the memory; the model computes whole sequences with
-    :func:`plan_memory`, which reproduces it slot for slot (tested against this).
-
-    Args:
-        keys: ``(E, N, T, dk)`` stored keys.
-        values: ``(E, N, T, dv)`` stored values.
-        count: ``(E, N)`` int64 writes since the episode start.
-        new_key: ``(E, N, dk)``.
-        new_value: ``(E, N, dv)``.
-        write: ``(E, N)`` bool, which agents store this step.
-
-    Returns:
-        New keys, values, count and the ``(E, N, T)`` bool one-hot of the written slot.
-    """
-    slots = keys.shape[2]
-    if slots == 0:
-        return keys, values, count, torch.zeros_like(keys[..., 0], dtype=torch.bool)
-    idx = torch.arange(slots, device=count.device)
-    slot = (idx == (count % slots).unsqueeze(-1)) & write.unsqueeze(-1)
-    keys = torch.where(slot.unsqueeze(-1), new_key.unsqueeze(2), keys)
-    values = torch.where(slot.unsqueeze(-1), new_value.unsqueeze(2), values)
-    return keys, values, count + write.long(), slot
-
-
 def pooled_past_values(values: Tensor, mask: Tensor) -> Tensor:
     """Masked mean over slots: ``(E, N, T, dv)``, ``(E, N, T)`` → ``(E, N, dv)``."""
     w = mask.to(values.dtype)
@@ -277,22 +249,28 @@ class MemoryPlan:
     bookkeeping only (episode starts, active flags, the store schedule), so a sequence of
     ``T`` steps needs no step-by-step state: each step's memory *after its write* is a
     gather from a source table ``[memory before the sequence (S slots) | this sequence's
-    entries (T) | a zero row]`` (:meth:`gather`). It holds exactly what the
-    step-by-step ring buffer of :func:`write_memory` would hold, slot for slot.
+    entries (T) | a zero row]`` (:meth:`gather`). It holds exactly what a step-by-step
+    ring buffer would hold, slot for slot (write at slot ``count % S``, overwriting the
+    oldest; tested against such a reference).
 
     Attributes:
         index: ``(T, E, N, S)`` int64, row of the source table in each slot after step t.
         write: ``(T, E, N)`` bool, the step's entry is stored.
         count: ``(T, E, N)`` int64, writes since the episode start after step t.
-        slot: ``(T, E, N, S)`` bool, one-hot of the slot written at step t.
         steps: ``(E, N)`` int64, steps since the episode start after the last step.
     """
 
     index: Tensor
     write: Tensor
     count: Tensor
-    slot: Tensor
     steps: Tensor
+
+    @property
+    def slot(self) -> Tensor:
+        """``(T, E, N, S)`` bool, one-hot of the slot step t wrote (its own table row)."""
+        t_len = self.index.shape[0]
+        own = self.index.shape[3] + torch.arange(t_len, device=self.index.device)
+        return self.index == own.view(t_len, 1, 1, 1)
 
     def gather(self, before: Tensor, entries: Tensor) -> Tensor:
         """What each step matches: its memory after the write, then its own entry.
@@ -331,23 +309,21 @@ def plan_memory(count: Tensor, steps: Tensor, starts: Tensor, active: Tensor, sl
     zero_row = slots + t_len
     current = torch.arange(slots, device=count.device).expand(*count.shape, slots).clone()
     count, steps = count.clone(), steps.clone()
-    index, write_all, count_all, slot_all = [], [], [], []
+    index, write_all, count_all = [], [], []
     for t in range(t_len):
         reset = starts[t]
         count = torch.where(reset, torch.zeros_like(count), count)
         steps = torch.where(reset, torch.zeros_like(steps), steps)
         current = torch.where(reset[..., None], torch.full_like(current, zero_row), current)
         write = active[t] & (steps % store_interval == 0) & (writes and slots > 0)
-        slot = torch.zeros_like(current, dtype=torch.bool)
         if slots:
             slot = (torch.arange(slots, device=count.device) == (count % slots)[..., None]
                     ) & write[..., None]
-        current = torch.where(slot, torch.full_like(current, slots + t), current)
+            current = torch.where(slot, torch.full_like(current, slots + t), current)
         count = count + write.long()
         steps = steps + active[t].long()
         index.append(current)
         write_all.append(write)
         count_all.append(count)
-        slot_all.append(slot)
     return MemoryPlan(torch.stack(index), torch.stack(write_all), torch.stack(count_all),
-                      torch.stack(slot_all), steps)
+                      steps)
