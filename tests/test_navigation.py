@@ -143,3 +143,29 @@ def test_blocked_field_detours_and_paths_start_next_to_a_blocked_cell(door_scene
     path = beside.path_from(a)
     assert np.isfinite(beside.grid[nav.to_cell(path[1])])
     np.testing.assert_allclose(path[-1], g)
+
+
+def test_a_goal_walled_in_by_robots_gets_a_field_not_a_crash(door_scene):
+    """Robots' discs around a goal leave it a pocket with no zero contour to march from.
+
+    (A DAgger run crashed here: skfmm raised "no zero contour" from the oracle's detour.)
+    """
+    nav = door_scene.nav
+    g = nav.cell_centers(*nav.to_cell(np.array([2.0, 3.5])))  # a cell centre
+    r, c = nav.to_cell(g)
+    blocked = np.zeros(nav.shape, dtype=bool)
+    blocked[r - 1:r + 2, c - 1:c + 2] = True
+    blocked[r, c] = False  # the goal's own cell, walled in; the rest of the room is free
+    assert (nav.components[~blocked] == nav.components[r, c]).sum() > 100
+    field = nav.geodesic_field(g, blocked=blocked)
+    assert field.grid[r, c] == pytest.approx(0.0, abs=1e-9)
+    assert np.isfinite(field.grid).sum() == 1
+    blocked[:] = True
+    # a pocket of three cells with two more cells beyond a diagonal gap: fast marching
+    # cannot step diagonally, so those stay unreachable
+    blocked[r - 1:r + 2, c] = False
+    blocked[r + 2:r + 4, c + 1] = False
+    field = nav.geodesic_field(g, blocked=blocked)
+    finite = np.isfinite(field.grid)
+    assert finite[r - 1:r + 2, c].all() and finite.sum() == 3
+    np.testing.assert_allclose(field.grid[r - 1:r + 2, c], [RES, 0.0, RES], atol=0.02 * RES)

@@ -286,10 +286,18 @@ def _fast_march(nav: NavGrid, goal: np.ndarray, region: np.ndarray) -> np.ndarra
     radius = 0.75 * res  # zero level set: a small circle around the goal
     phi = np.linalg.norm(centres - goal, axis=-1) - radius
     out = np.full(nav.shape, np.inf)
-    if not (phi[region] > 0).any() or not (phi[region] <= 0).any():
-        # Degenerate: the component is tiny; straight-line distance is exact there.
-        out[region] = phi[region] + radius
+    # Fast marching steps between edge neighbours only, so the goal reaches exactly the
+    # 4-connected piece of ``region`` around its cell (other robots' discs can cut a
+    # component into pieces, or wall the goal in). Everything else stays ``inf``.
+    labels, _ = ndimage.label(region)
+    r, c = (int(v) for v in nav.to_cell(goal))
+    piece = (labels == labels[r, c]) & region
+    if not (phi[piece] > 0).any():
+        # Degenerate: the piece lies within the zero circle (the goal is walled in);
+        # fast marching has no zero contour there, the straight line is exact.
+        out[piece] = phi[piece] + radius
         return out
-    d = skfmm.distance(np.ma.MaskedArray(phi, mask=~region), dx=res, order=2)
-    out[region] = np.asarray(d.filled(np.inf))[region] + radius
+    # The piece is connected and holds both signs, so it has a zero contour.
+    d = skfmm.distance(np.ma.MaskedArray(phi, mask=~piece), dx=res, order=2)
+    out[piece] = np.asarray(d.filled(np.inf))[piece] + radius
     return out
