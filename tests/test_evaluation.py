@@ -158,6 +158,17 @@ def test_evaluation_reports_communication_per_method(door_scene, tmp_path, capsy
     assert 0.0 < rates["ours"]["received_rate"] < 1.0
     assert rates["ours"]["received_rate"] <= rates["ours"]["when_rate"]
     assert rates["ours"]["bytes_per_agent_step"] > 0
+    # the --mute ablation: the same checkpoint, links to teammates cut
+    assert main(["evaluate", "--policy", str(tmp_path / "ours.pt"), "--mute", "--dataset",
+                 str(data), "--out", str(tmp_path / "muted"), "--json", *small]) == 0
+    muted = json.loads(capsys.readouterr().out)[str(tmp_path / "ours.pt")]["communication"]
+    assert muted["received_rate"] == muted["bytes_per_agent_step"] == 0.0
+    assert muted["when_rate"] > 0.0  # its own gate still opens
+    for policy, why in (("random", "the random policy sends none"),
+                        (str(tmp_path / "no-com.pt"), "has no communication")):
+        assert main(["evaluate", "--policy", policy, "--mute", "--dataset", str(data),
+                     "--out", str(tmp_path / "refused"), *small]) == 2
+        assert why in capsys.readouterr().err
 
 
 def _block_runs(door_scene, variant: str, seed: int):

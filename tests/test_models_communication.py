@@ -273,6 +273,23 @@ def test_model_in_eval_mode_puts_teammate_values_in_omega(n):
     assert counts.received.all() and counts.when.all()
 
 
+def test_a_muted_model_reads_only_its_own_memory_and_sends_nothing():
+    """The ``--mute`` ablation: same weights, teammates' entries out of the match."""
+    torch.manual_seed(0)
+    model = ActorCritic(tiny()).eval()
+    p = constant_scores(model, 1.0)
+    talking = run(model, 3, 1, e=2)[0]
+    model.listen = False
+    out = run(model, 3, 1, e=2)[0]
+    values = out.state.mem_values[:, :, 0]
+    assert torch.equal(values, talking.state.mem_values[:, :, 0])  # same υ either way
+    assert torch.allclose(out.message.omega, p * p * values, atol=1e-5)
+    assert not torch.allclose(out.message.omega, talking.message.omega, atol=1e-3)
+    counts = communication_counts(out.message, torch.ones(2, 3, dtype=torch.bool))
+    assert counts.when.all() and not counts.received.any()
+    assert (out.message.bytes_sent == 0).all() and (talking.message.bytes_sent > 0).all()
+
+
 def test_model_matches_an_entry_stored_k_steps_earlier():
     torch.manual_seed(0)
     model = ActorCritic(tiny()).eval()

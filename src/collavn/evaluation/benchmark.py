@@ -61,6 +61,10 @@ class EvalConfig:
     stochastic: bool = False
     """Checkpoints only: sample actions from the policy's Gaussian (seeded by ``--seed``)
     instead of taking its mean."""
+    mute: bool = False
+    """Checkpoints with communication: cut every link between teammates (each agent
+    matches only its own memory; its gate and η unchanged): an ablation of what the
+    messages add. Compare with the same checkpoint without ``--mute``."""
     keep_trajectories: int = 6
     """Keep the paths of this many episodes per dataset file (for ``collavn viz``)."""
     progress: bool = True
@@ -93,7 +97,7 @@ def run_evaluation(cfg: EvalConfig, dataset: Dataset) -> EvaluationResult:
             scene = load_scene(content.scene.spec)
             content.check_scene(scene)
             policy, overrides = make_policy(cfg.policy, [scene], cfg.seed, cfg.device,
-                                            cfg.stochastic)
+                                            cfg.stochastic, mute=cfg.mute)
             env = replace(cfg.env, task=cast(TaskName, content.task),
                           num_agents=content.num_agents, **overrides)
             total.add(evaluate(policy, scene, episodes, env, cfg.num_envs, cfg.seed,

@@ -195,7 +195,8 @@ def match_scores(query_psi: Tensor, bias: Tensor, keys: Tensor, values: Tensor,
 
 
 def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor, values: Tensor,
-                     entry_mask: Tensor, active: Tensor, cfg: CommConfig) -> Message:
+                     entry_mask: Tensor, active: Tensor, cfg: CommConfig,
+                     teammates: bool = True) -> Message:
     """Match every requester against every active agent's entries and form ω.
 
     Args:
@@ -206,9 +207,14 @@ def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor, values: Tens
         entry_mask: ``(E, N, L)`` bool, entry present.
         active: ``(E, N)`` bool; inactive agents neither request nor support.
         cfg: Communication settings (threshold, temperature, sizes).
+        teammates: ``False`` cuts every link between two agents (an ablation): each
+            agent matches only its own memory, η and its own gate stay as they are, and
+            nothing is sent or received.
     """
     eye = torch.eye(keys.shape[1], dtype=torch.bool, device=keys.device)
     pair_active = active.unsqueeze(2) & active.unsqueeze(1)
+    if not teammates:
+        pair_active = pair_active & eye
     scores, v_hat = match_scores(query_psi, bias, keys, values, entry_mask, pair_active)
     eta = selection_threshold(active, cfg).to(scores.dtype).view(-1, 1, 1)
     opened = straight_through_gate(scores, eta, cfg.temperature)
@@ -220,8 +226,9 @@ def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor, values: Tens
     above = (scores > eta) & pair_active
     self_open = torch.diagonal(above, dim1=1, dim2=2)
     links = above & self_open.unsqueeze(-1) & ~eye
-    return Message(omega, scores, gates, self_open, links,
-                   _bytes_sent(links, self_open, active, cfg))
+    sent = (_bytes_sent(links, self_open, active, cfg) if teammates
+            else torch.zeros(active.shape, device=active.device))
+    return Message(omega, scores, gates, self_open, links, sent)
 
 
 def _bytes_sent(links: Tensor, self_open: Tensor, active: Tensor, cfg: CommConfig) -> Tensor:

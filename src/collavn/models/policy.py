@@ -256,6 +256,9 @@ class ActorCritic(nn.Module):
         copies = cfg.max_agents if cfg.per_agent_params else 1
         self.towers = nn.ModuleList([AgentTower(cfg) for _ in range(copies)])
         self.frames_frozen = False
+        self.listen = True
+        """``False`` cuts the links to teammates (an evaluation ablation of what the
+        messages add; see :func:`~collavn.models.communication.match_and_select`)."""
         if device is not None:
             self.to(device)
 
@@ -483,7 +486,8 @@ class ActorCritic(nn.Module):
             matched = torch.cat([stored, ~plan.write.unsqueeze(-1)], dim=3)
             msg = match_and_select(query.flatten(0, 1), bias.flatten(0, 1),
                                    keys.flatten(0, 1), values.flatten(0, 1),
-                                   matched.flatten(0, 1), active.flatten(0, 1), cfg)
+                                   matched.flatten(0, 1), active.flatten(0, 1), cfg,
+                                   teammates=self.listen)
             parts = [f.reshape(steps, e, *f.shape[1:]).unbind(0) for f in (
                 msg.omega, msg.scores, msg.gates, msg.self_open, msg.links, msg.bytes_sent)]
             messages = [Message(*fields) for fields in zip(*parts, strict=True)]

@@ -24,12 +24,16 @@ __all__ = ["NAMED_POLICIES", "CheckpointPolicy", "CommStats", "ExplorerPolicy", 
 
 
 def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0, device: str = "cpu",
-                stochastic: bool = False) -> tuple[Policy, dict[str, Any]]:
+                stochastic: bool = False, mute: bool = False) -> tuple[Policy, dict[str, Any]]:
     """A policy by name (``random``, ``explorer``, ``oracle``) or checkpoint path.
+
+    ``mute`` (checkpoints only) cuts the links between teammates: an ablation.
 
     Returns:
         The policy and the env overrides it needs (privileged observations, image sizes).
     """
+    if mute and name in NAMED_POLICIES:
+        raise CollavnError(f"--mute cuts a checkpoint's messages; the {name} policy sends none")
     if name == "random":
         return RandomPolicy(seed), {}
     if name == "explorer":
@@ -39,4 +43,4 @@ def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0, device: str =
     if not Path(name).exists():
         raise CollavnError(f"unknown policy {name!r}: use {', '.join(NAMED_POLICIES)} or a "
                            f"checkpoint file")
-    return load_policy(name, device=device, stochastic=stochastic, seed=seed)
+    return load_policy(name, device=device, stochastic=stochastic, seed=seed, mute=mute)

@@ -250,8 +250,11 @@ def _padded(x: torch.Tensor, size: int) -> torch.Tensor:
 
 
 def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
-                seed: int = 0) -> tuple[CheckpointPolicy, dict[str, Any]]:
+                seed: int = 0, mute: bool = False) -> tuple[CheckpointPolicy, dict[str, Any]]:
     """A checkpoint as an evaluation policy, plus the env settings it needs.
+
+    ``mute`` cuts the links between teammates (an ablation; see
+    :attr:`ActorCritic.listen`).
 
     Returns:
         The policy and ``EnvConfig`` overrides (image sizes, depth).
@@ -259,6 +262,10 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
     payload = load_checkpoint(path, map_location=device)
     model_cfg = checkpoint_model_config(payload, path)
     model = ActorCritic(model_cfg, device=device)
+    if mute and model_cfg.comm.variant == "none":
+        raise CheckpointError(f"--mute: checkpoint {path} has no communication "
+                              f"(its comm variant is 'none')")
+    model.listen = not mute
     try:
         model.load_state_dict(payload["model"])
     except (RuntimeError, KeyError) as e:
