@@ -32,7 +32,6 @@ from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv, episode_seed
 from collavn.errors import CollavnError
 from collavn.scenes import Scene
-from collavn.simulation.world import check_actions
 
 Step = tuple[dict[str, Any], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]
 
@@ -109,8 +108,6 @@ class SplitVectorEnv:
         if self._pending[p] is not None:
             raise CollavnError(f"part {p} is already stepping: call step_wait({p}) first")
         part = self.parts[p]
-        # checked here too, so that an error names the env's index in the whole
-        check_actions(actions, part.num_envs, self.num_agents, self.bounds[p].start)
         if self._pool is None:
             done: Future[Step] = Future()
             try:

@@ -181,9 +181,8 @@ def relative_pose(frame: np.ndarray, pose: np.ndarray) -> np.ndarray:
                      wrap_angle(pose[..., 2] - frame[..., 2])], axis=-1)
 
 
-def check_actions(action: np.ndarray, num_envs: int, num_agents: int,
-                  first_env: int = 0) -> np.ndarray:
-    """Validate and clip an ``(E, N, 2)`` action batch (of envs ``first_env`` on).
+def check_actions(action: np.ndarray, num_envs: int, num_agents: int) -> np.ndarray:
+    """Validate and clip an ``(E, N, 2)`` action batch.
 
     Raises:
         ActionError: wrong shape, or a NaN/inf entry (the message names env and agent).
@@ -195,6 +194,5 @@ def check_actions(action: np.ndarray, num_envs: int, num_agents: int,
     bad = ~np.isfinite(a).all(axis=-1)
     if bad.any():
         e, n = (int(v) for v in np.argwhere(bad)[0])
-        raise ActionError(f"action of agent_{n} in env {first_env + e} is not finite: "
-                          f"{a[e, n].tolist()}")
+        raise ActionError(f"action of agent_{n} in env {e} is not finite: {a[e, n].tolist()}")
     return np.clip(a, -1.0, 1.0)
