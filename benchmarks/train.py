@@ -11,13 +11,9 @@ runs with fewer envs and a short rollout; the rates are per agent-step, so they 
 in the rollout, as ``collavn train --encoder``). ``--contended`` measures every row twice,
 alone and with a second process spinning on one core, and prints the ratio (a run should
 keep at least half its speed when another one shares a 2-core machine).
-``--env-parts 1 2`` (the default) measures each row with all envs in one batch and in
-two parts stepped on a worker thread while the policy acts (``collavn train
---env-parts``; :mod:`collavn.envs.split`), and prints the loop's speed-up over one part.
 
 Usage: ``python benchmarks/train.py [--presets cpu paper] [--methods no-com ours]
-[--updates 2] [--torch-threads 0] [--render-threads 1] [--encoder FILE] [--contended]
-[--env-parts 1 2]``.
+[--updates 2] [--torch-threads 0] [--render-threads 1] [--encoder FILE] [--contended]``.
 """
 
 from __future__ import annotations
@@ -66,7 +62,6 @@ def measure(cfg: TrainConfig, updates: int) -> tuple[float, float, float]:
         learn(run, rollout)
         collect_s += t1 - t0
         total_s += time.perf_counter() - t0
-    run.env.close()
     steps = updates * cfg.ppo.rollout_steps * cfg.run.num_envs * cfg.env.num_agents
     return steps / (collect_s - map_s), steps / total_s, map_s / total_s
 
@@ -76,14 +71,13 @@ def busy_process() -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-c", "while True: pass"])
 
 
-def row(preset: str, method: str, parts: int, args: argparse.Namespace) -> TrainConfig:
-    """The benchmark's config of one preset, method and number of env parts."""
+def row(preset: str, method: str, args: argparse.Namespace) -> TrainConfig:
+    """The benchmark's config of one preset and method."""
     from collavn.scenes.splits import scene_specs
 
     scenes = tuple(scene_specs("train")[: args.scenes])
     cfg = preset_config(preset, method=method).with_run(
-        scenes=scenes, progress=False, torch_threads=args.torch_threads, encoder=args.encoder,
-        env_parts=parts)
+        scenes=scenes, progress=False, torch_threads=args.torch_threads, encoder=args.encoder)
     cfg = cfg.with_env(render_threads=args.render_threads)
     if preset == "paper":
         cfg = replace(cfg, ppo=replace(cfg.ppo, rollout_steps=args.paper_rollout)
@@ -104,35 +98,27 @@ def main() -> None:
     parser.add_argument("--paper-envs", type=int, default=2)
     parser.add_argument("--paper-rollout", type=int, default=4)
     parser.add_argument("--scenes", type=int, default=8, help="training scenes to load")
-    parser.add_argument("--env-parts", type=int, nargs="+", default=[1, 2],
-                        help="env parts to measure (1 = one batch: the reference)")
     args = parser.parse_args()
     print(f"{args.updates} updates, torch threads {args.torch_threads or 'auto'}, "
           f"render threads {args.render_threads}, encoder {args.encoder or 'none (pixels)'}")
-    print(f"{'preset':<8}{'method':<8}{'envs':>5}{'T':>4}{'parts':>6}{'collect st/s':>14}"
-          f"{'loop st/s':>11}{'vs 1 part':>10}{'map share':>11}"
-          + (f"{'contended':>11}{'ratio':>7}" if args.contended else ""))
+    print(f"{'preset':<8}{'method':<8}{'envs':>5}{'T':>4}{'collect st/s':>14}"
+          f"{'loop st/s':>11}{'map share':>11}" + (f"{'contended':>11}{'ratio':>7}"
+                                                   if args.contended else ""))
     for preset in args.presets:
         for method in args.methods:
-            reference = None
-            for parts in args.env_parts:
-                cfg = row(preset, method, parts, args)
-                collect, loop, share = measure(cfg, args.updates)
-                if parts == 1:
-                    reference = loop
-                gain = f"{loop / reference:>9.2f}x" if reference else f"{'-':>10}"
-                line = (f"{preset:<8}{method:<8}{cfg.run.num_envs:>5}"
-                        f"{cfg.ppo.rollout_steps:>4}{parts:>6}{collect:>14.1f}{loop:>11.1f}"
-                        f"{gain}{share:>10.0%}")
-                if args.contended:
-                    busy = busy_process()
-                    try:
-                        _, contended, _ = measure(cfg, args.updates)
-                    finally:
-                        busy.kill()
-                        busy.wait()
-                    line += f"{contended:>11.1f}{contended / loop:>7.2f}"
-                print(line, flush=True)
+            cfg = row(preset, method, args)
+            collect, loop, share = measure(cfg, args.updates)
+            line = (f"{preset:<8}{method:<8}{cfg.run.num_envs:>5}{cfg.ppo.rollout_steps:>4}"
+                    f"{collect:>14.1f}{loop:>11.1f}{share:>10.0%}")
+            if args.contended:
+                busy = busy_process()
+                try:
+                    _, contended, _ = measure(cfg, args.updates)
+                finally:
+                    busy.kill()
+                    busy.wait()
+                line += f"{contended:>11.1f}{contended / loop:>7.2f}"
+            print(line, flush=True)
 
 
 if __name__ == "__main__":

@@ -3,8 +3,7 @@ import pytest
 from pettingzoo.test import parallel_api_test, parallel_seed_test
 
 from collavn.envs import EnvConfig, VectorEnv, make_parallel_env
-from collavn.envs.split import SplitVectorEnv
-from collavn.errors import ActionError, CollavnError
+from collavn.errors import ActionError
 from collavn.metrics import AgentRecord
 
 SMALL = {"panorama_width": 64, "panorama_height": 16, "goal_size": 16, "difficulty": "easy",
@@ -161,75 +160,3 @@ def test_the_free_space_sensor_reads_the_depth_it_renders(open_room):
     assert parallel.reset(seed=3)[0]["agent_1"]["free_space"].shape == (8,)
     with pytest.raises(ConfigError, match=r"--env.free-space 5 must divide the panorama width"):
         EnvConfig(free_space=5, **SMALL)
-
-
-def _rollout(env, steps, seed):
-    rng = np.random.default_rng(seed)
-    out = [env.reset(seed=seed)[0]]
-    for _ in range(steps):
-        obs, reward, terminated, _, info = env.step(
-            rng.uniform(-1, 1, (env.num_envs, env.num_agents, 2)))
-        out.append({**obs, "reward": reward, "terminated": terminated,
-                    "done": info["episode_done"], "records": len(info["episode_records"])})
-    return out
-
-
-def _same(a, b):
-    assert len(a) == len(b)
-    for x, y in zip(a, b, strict=True):
-        assert x.keys() == y.keys()
-        for k in x:
-            np.testing.assert_array_equal(x[k], y[k], err_msg=k)
-
-
-def test_a_split_env_of_one_part_is_the_vector_env(open_room, door_scene):
-    cfg = EnvConfig(num_agents=2, **SMALL)
-    one = SplitVectorEnv([open_room, door_scene], 3, cfg, seed=4, parts=1)
-    _same(_rollout(one, 14, 1), _rollout(VectorEnv([open_room, door_scene], 3, cfg, seed=4),
-                                          14, 1))
-
-
-def test_a_split_env_steps_its_parts_like_one_env_and_repeats_itself(open_room, door_scene):
-    cfg = EnvConfig(num_agents=2, privileged=True, **SMALL)
-    scenes = [open_room, door_scene, open_room]  # 5 envs: parts of 2 and 3, shared scenes
-    env = SplitVectorEnv(scenes, 5, cfg, seed=4)
-    assert [b.stop - b.start for b in env.bounds] == [2, 3]
-    runs = _rollout(env, 14, 1)
-    assert sum(r["records"] for r in runs[1:]) > 0  # episodes ended (and restarted)
-    _same(runs, _rollout(SplitVectorEnv(scenes, 5, cfg, seed=4), 14, 1))
-    # env i is in scenes[i % 3], and obs["scene_index"] points at it in env.scenes
-    for e, i in enumerate(runs[-1]["scene_index"]):
-        assert env.scenes[i] is scenes[e % 3]
-    # parts stepped one by one (the trainer's order) give what step() gives
-    env.reset(seed=2)
-    other = SplitVectorEnv(scenes, 5, cfg, seed=4)
-    other.reset(seed=2)
-    actions = np.random.default_rng(0).uniform(-1, 1, (5, 2, 2))
-    for p, b in enumerate(env.bounds):
-        env.step_async(p, actions[b])
-    parts = [env.step_wait(p) for p in range(2)]
-    whole = other.step(actions)
-    for k in whole[0]:
-        np.testing.assert_array_equal(np.concatenate([s[0][k] for s in parts]), whole[0][k])
-    np.testing.assert_array_equal(np.concatenate([s[1] for s in parts]), whole[1])
-    env.close()
-    other.close()
-
-
-def test_a_split_env_reports_misuse_and_bad_actions(open_room):
-    cfg = EnvConfig(num_agents=2, **SMALL)
-    with pytest.raises(CollavnError, match="cannot cut 2 envs into 3 parts"):
-        SplitVectorEnv([open_room], 2, cfg, parts=3)
-    env = SplitVectorEnv([open_room], 2, cfg, seed=0)
-    env.reset()
-    with pytest.raises(CollavnError, match="part 1 is not stepping"):
-        env.step_wait(1)
-    env.step_async(0, np.zeros((1, 2, 2)))
-    with pytest.raises(CollavnError, match="part 0 is already stepping"):
-        env.step_async(0, np.zeros((1, 2, 2)))
-    env.step_wait(0)
-    # an error on the worker thread comes back from step_wait, naming the problem
-    env.step_async(1, np.array([[[0.0, 0.0], [np.nan, 0.0]]]))
-    with pytest.raises(ActionError, match="agent_1 in env 0 is not finite"):
-        env.step_wait(1)
-    env.close()

@@ -24,8 +24,8 @@ sample, which PPO must store and pass back to :meth:`ActorCritic.evaluate_action
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, fields, replace
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from typing import cast
 
 import torch
@@ -211,20 +211,6 @@ class ActOutput:
     bytes_sent: Tensor
     message: Message
     percepts: Percepts
-
-    @classmethod
-    def cat(cls, parts: Sequence[ActOutput]) -> ActOutput:
-        """The outputs of consecutive env batches joined along the env axis."""
-        def join(values: Sequence[Tensor]) -> Tensor:
-            return torch.cat(list(values))
-
-        message = Message(**{f.name: join([getattr(p.message, f.name) for p in parts])
-                             for f in fields(Message)})
-        return cls(join([p.action for p in parts]), join([p.raw_action for p in parts]),
-                   join([p.log_prob for p in parts]), join([p.value for p in parts]),
-                   AgentState.cat([p.state for p in parts]),
-                   join([p.bytes_sent for p in parts]), message,
-                   {k: join([p.percepts[k] for p in parts]) for k in parts[0].percepts})
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import threading
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -69,8 +68,6 @@ class Scene:
     _fields: dict[tuple[float, float], GeodesicField] = field(
         default_factory=dict, repr=False, compare=False
     )
-    _fields_lock: threading.Lock = field(default_factory=threading.Lock, repr=False,
-                                         compare=False)
 
     def __post_init__(self) -> None:
         f = self.faces.shape[0]
@@ -130,20 +127,14 @@ class Scene:
 
     # ---------------------------------------------------------------- navigation
     def geodesic_field(self, goal: np.ndarray | tuple[float, float]) -> GeodesicField:
-        """Geodesic distance field to ``goal`` (x, y); cached per goal in memory.
-
-        Thread-safe: a training run's env worker thread and its oracle share scenes.
-        """
+        """Geodesic distance field to ``goal`` (x, y); cached per goal in memory."""
         g = np.asarray(goal, dtype=np.float64).reshape(2)
         key = (round(float(g[0]), 4), round(float(g[1]), 4))
-        with self._fields_lock:
-            cached = self._fields.get(key)
+        cached = self._fields.get(key)
         if cached is None:
-            cached = self.nav.geodesic_field(g)  # outside the lock: fast marching is slow
-            with self._fields_lock:
-                if len(self._fields) >= 256 and key not in self._fields:
-                    self._fields.pop(next(iter(self._fields)))
-                self._fields[key] = cached
+            if len(self._fields) >= 256:
+                self._fields.pop(next(iter(self._fields)))
+            cached = self._fields[key] = self.nav.geodesic_field(g)
         return cached
 
     def geodesic_distance(self, start: np.ndarray | tuple[float, float],

@@ -197,11 +197,6 @@ class RunConfig:
     """Base seed; process ``r`` uses ``seed + 1000·r`` for its envs and sampling."""
     num_envs: int = 25
     """Envs per process; env ``i`` lives in scene ``i mod #scenes`` of the process."""
-    env_parts: int = 2
-    """Cut the envs into this many parts (at most ``num_envs``) stepped on a worker
-    thread while the policy acts for the next part: env and policy run on two cores at
-    once (:mod:`collavn.envs.split`). 1 = one batch on one thread (the behaviour of runs
-    from before this option). Results are deterministic either way, not equal."""
     scenes: tuple[str, ...] = ()
     """Scene specs to train on; empty = the 25 procedural ``train`` scenes."""
     load: Annotated[LoadOptions, tyro.conf.OmitArgPrefixes] = field(default_factory=LoadOptions)
@@ -238,8 +233,7 @@ class RunConfig:
     (a resume refuses another file); give it to insist on one file."""
 
     def __post_init__(self) -> None:
-        for name in ("num_envs", "env_parts", "total_steps", "checkpoint_interval",
-                     "log_interval"):
+        for name in ("num_envs", "total_steps", "checkpoint_interval", "log_interval"):
             check_count(f"--{name.replace('_', '-')}", getattr(self, name))
         check_count("--seed", self.seed, 0)
         check_count("--torch-threads", self.torch_threads, 0)

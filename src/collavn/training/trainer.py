@@ -33,10 +33,10 @@ import torch
 from torch import nn
 
 from collavn.envs.config import EnvConfig
-from collavn.envs.split import SplitVectorEnv, Step, join_obs, join_steps
+from collavn.envs.vector import VectorEnv
 from collavn.errors import CheckpointError
 from collavn.files import prepare_output_dir
-from collavn.models.policy import ActorCritic, ActOutput, AgentTower
+from collavn.models.policy import ActorCritic, AgentTower
 from collavn.models.state import AgentState
 from collavn.perception.encoder import EncoderFile, install_encoder, load_encoder
 from collavn.policies import OraclePolicy
@@ -70,7 +70,7 @@ class Run:
     cfg: TrainConfig
     info: distributed.DistInfo
     device: torch.device
-    env: SplitVectorEnv
+    env: VectorEnv
     model: ActorCritic
     optimizer: torch.optim.Optimizer
     maps: MapTrainer
@@ -108,12 +108,6 @@ def env_config(cfg: TrainConfig) -> EnvConfig:
                    privileged=cfg.method_spec.imitation)
 
 
-def make_env(cfg: TrainConfig, scenes: list[Scene], seed: int) -> SplitVectorEnv:
-    """The run's envs in ``cfg.run.env_parts`` parts (at most one per env)."""
-    return SplitVectorEnv(scenes, cfg.run.num_envs, env_config(cfg), seed=seed,
-                          parts=min(cfg.run.env_parts, cfg.run.num_envs))
-
-
 def set_train_mode(model: nn.Module) -> None:
     """``train()`` with batch-norm statistics frozen.
 
@@ -147,7 +141,8 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     cfg, encoder = resolve_encoder(cfg)
     specs = list(cfg.run.scenes) or scene_specs("train")
     scenes = [load_scene(cfg.run.load.spec(s)) for s in distributed.shard(specs, info)]
-    env = make_env(cfg, scene_window(scenes, cfg.run.num_envs, 0), info.seed(cfg.run.seed))
+    env = VectorEnv(scene_window(scenes, cfg.run.num_envs, 0), cfg.run.num_envs,
+                    env_config(cfg), seed=info.seed(cfg.run.seed))
     torch.manual_seed(cfg.run.seed)
     model = ActorCritic(cfg.model, device=device)
     if cfg.run.init_from:
@@ -229,8 +224,7 @@ def sync_point(run: Run) -> None:
     window = scene_window(run.scenes, run.cfg.run.num_envs,
                           run.iteration // run.cfg.run.checkpoint_interval)
     if [s.name for s in window] != [s.name for s in run.env.scenes]:  # next scenes
-        run.env.close()
-        run.env = make_env(run.cfg, window, seed)
+        run.env = VectorEnv(window, run.cfg.run.num_envs, env_config(run.cfg), seed=seed)
         if run.expert is not None:
             run.expert = OraclePolicy(run.env.scenes)
     run.obs, _ = run.env.reset(seed=seed)
@@ -242,73 +236,43 @@ def sync_point(run: Run) -> None:
 def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     """Step the envs ``rollout_steps`` times with the current policy (or the oracle mix).
 
-    The envs come in parts (:class:`~collavn.envs.split.SplitVectorEnv`): the policy
-    acts for one part while the worker thread steps the part before it, so every step
-    of part ``p`` first waits for that part's observations. A step's rollout entries
-    are stored once every part has acted; its outcomes once every part has stepped.
-
     Returns:
         The rollout (with ``last_value`` bootstrapped) and collection statistics.
     """
-    cfg, model, device, env = run.cfg, run.model, run.device, run.env
+    cfg, model, device = run.cfg, run.model, run.device
     keys = policy_keys(cfg.model.map.use_depth, cfg.model.free_space_input > 0)
-    kept = model.replay_keys()
     assert run.state is not None
-    parts = range(len(env.bounds))
-    obs = [env.part_obs(run.obs, p) for p in parts]
-    states = [run.state.select_envs(b) for b in env.bounds]
+    obs_t = obs_to_torch(run.obs, keys, device)
     rollout: Rollout | None = None
     beta = expert_probability(cfg.imitation, run.iteration)
     comm = CommStats()
     start = time.perf_counter()
-    steps = cfg.ppo.rollout_steps
-    for t in range(steps + 1):
-        acted, targets, seen, starts = [], [], [], []
-        results: list[Step] = []
-        for p in parts:
-            if t > 0:  # part p's observations after step t - 1
-                results.append(env.step_wait(p))
-                obs[p] = results[p][0]
-            if t == steps:
-                continue
-            obs_t, start_t = obs_to_torch(obs[p], keys, device), episode_start(obs[p], device)
-            # DAgger's learner drives with its mean action, the policy that is evaluated:
-            # the expert then labels the states that action reaches (pressed against a
-            # wall, …)
-            out = model.act(obs_t, states[p], start_t, deterministic=run.expert is not None)
-            actions, target = out.action.cpu().numpy().astype(np.float64), out.raw_action
-            if run.expert is not None:
-                expert = expert_actions(run.expert, obs[p])
-                actions = mix_actions(actions, expert, beta, run.rng)
-                target = torch.as_tensor(expert, dtype=torch.float32, device=device)
-            env.step_async(p, actions)
-            acted.append(out)
-            targets.append(target)
-            seen.append({k: obs_t[k] for k in kept})
-            starts.append(start_t)
-            states[p] = out.state
-        if t > 0:
-            _, reward, terminated, truncated, info = join_steps(results)
-            assert rollout is not None
-            rollout.insert_outcome(t - 1, reward, terminated, truncated)
-            track_episodes(run, reward, info)
-        if t == steps:
-            break
-        out = ActOutput.cat(acted) if len(acted) > 1 else acted[0]
-        step_obs = {k: torch.cat([o[k] for o in seen]) for k in kept}
+    for t in range(cfg.ppo.rollout_steps):
+        start_t = episode_start(run.obs, device)
+        # DAgger's learner drives with its mean action, the policy that is evaluated: the
+        # expert then labels the states that action reaches (pressed against a wall, …)
+        out = model.act(obs_t, run.state, start_t, deterministic=run.expert is not None)
         if rollout is None:  # stores only what the update reads (see Rollout)
             rollout = Rollout.allocate(
-                cfg.ppo.rollout_steps, step_obs, run.state,
-                {k: out.percepts[k] for k in model.stored_percepts})
-        rollout.insert(t, step_obs, torch.cat(starts), torch.cat(targets), out.log_prob,
-                       out.value, out.percepts)
-        comm.add(tally(out.message, step_obs["active"]))
-        run.maps.observe(join_obs(obs))
+                cfg.ppo.rollout_steps, {k: obs_t[k] for k in model.replay_keys()},
+                run.state, {k: out.percepts[k] for k in model.stored_percepts})
+        actions = out.action.cpu().numpy().astype(np.float64)
+        stored = out.raw_action
+        if run.expert is not None:
+            expert = expert_actions(run.expert, run.obs)
+            actions = mix_actions(actions, expert, beta, run.rng)
+            stored = torch.as_tensor(expert, dtype=torch.float32, device=device)
+        rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value, out.percepts)
+        comm.add(tally(out.message, obs_t["active"]))
+        run.maps.observe(run.obs)
+        run.obs, reward, terminated, truncated, info = run.env.step(actions)
+        rollout.insert_outcome(t, reward, terminated, truncated)
+        track_episodes(run, reward, info)
+        run.state = out.state
+        obs_t = obs_to_torch(run.obs, keys, device)
     assert rollout is not None
-    run.obs, run.state = join_obs(obs), AgentState.cat(states)
     with torch.no_grad():
-        rollout.last_value = model(obs_to_torch(run.obs, keys, device), run.state,
-                                   episode_start(run.obs, device)).value
+        rollout.last_value = model(obs_t, run.state, episode_start(run.obs, device)).value
     seconds = time.perf_counter() - start
     return rollout, {**{f"comm/{k}": v for k, v in comm.rates().items()},
                      "perf/collect_seconds": seconds,
@@ -473,7 +437,6 @@ def train(cfg: TrainConfig) -> TrainResult:
             if logger is not None:
                 path = save_checkpoint(out / CHECKPOINT, checkpoint_payload(run))
                 logger.close()
-            run.env.close()
         return TrainResult(run.iteration, run.agent_steps, last, path, stop.signum, moved)
     finally:
         distributed.cleanup()
