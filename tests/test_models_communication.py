@@ -290,6 +290,22 @@ def test_a_muted_model_reads_only_its_own_memory_and_sends_nothing():
     assert (out.message.bytes_sent == 0).all() and (talking.message.bytes_sent > 0).all()
 
 
+@pytest.mark.parametrize("critic_gradient", [True, False])
+def test_the_value_loss_reaches_the_messages_only_with_critic_gradient(critic_gradient):
+    torch.manual_seed(0)
+    model = ActorCritic(tiny(critic_gradient=critic_gradient))
+    constant_scores(model, 1.0)  # every gate open
+    out = run(model, 2, 2)[-1]
+    out.value.square().sum().backward()  # a value loss alone
+    comm = model.towers[0].comm
+    reached = [p.grad is not None and bool(p.grad.abs().sum() > 0) for p in comm.parameters()]
+    assert any(reached) == critic_gradient
+    model.zero_grad(set_to_none=True)
+    out = run(model, 2, 2)[-1]
+    out.dist.mean.square().sum().backward()  # the policy's path trains them either way
+    assert any(p.grad is not None and bool(p.grad.abs().sum() > 0) for p in comm.parameters())
+
+
 def test_model_matches_an_entry_stored_k_steps_earlier():
     torch.manual_seed(0)
     model = ActorCritic(tiny()).eval()

@@ -89,6 +89,9 @@ class CommConfig:
             hard gate passes back (straight-through). The gate itself is the same hard
             indicator [s > η] in ``train()`` and ``eval()`` mode: the same ω in both.
         bytes_per_float: Wire size of one transmitted number (float32 = 4).
+        critic_gradient: The critic's value loss trains the communication through the
+            ω it reads (the default). ``False`` gives the critic ω detached: only the
+            policy's loss shapes what is sent and when the gates open.
     """
 
     variant: Annotated[CommVariant, tyro.conf.Suppress] = "memory"
@@ -100,6 +103,7 @@ class CommConfig:
     threshold: float | None = None
     temperature: float = 0.05
     bytes_per_float: int = 4
+    critic_gradient: bool = True
 
     def __post_init__(self) -> None:
         if self.memory_slots < 1 or self.store_interval < 1:

@@ -82,6 +82,7 @@ class AgentTower(FramePerception):
         msg = 0 if self.comm is None else self.comm.output_size
         critic_in = emb + msg + (map_dim + goal if cfg.critic_full_input else 0)
         self.critic_full_input = cfg.critic_full_input
+        self.critic_gradient = cfg.comm.critic_gradient
         self.actor_core = nn.GRUCell(emb + goal + map_dim + msg, cfg.hidden_size)
         self.critic_core = nn.GRUCell(critic_in, cfg.critic_hidden_size)
         self.actor_mean = nn.Linear(cfg.hidden_size, ACTION_DIM)
@@ -135,7 +136,8 @@ class AgentTower(FramePerception):
         For π(O, S, ω, g) and V(O, ω [, S, g]); they need no recurrent state, so a
         replay computes every step at once.
         """
-        critic_x = [o, omega] + ([s, g] if self.critic_full_input else [])
+        heard = omega if self.critic_gradient else omega.detach()
+        critic_x = [o, heard] + ([s, g] if self.critic_full_input else [])
         return (F.linear(torch.cat([o, s, omega, g], dim=-1), self.actor_core.weight_ih,
                          self.actor_core.bias_ih),
                 F.linear(torch.cat(critic_x, dim=-1), self.critic_core.weight_ih,
