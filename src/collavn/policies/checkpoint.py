@@ -263,10 +263,10 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
     """
     payload = load_checkpoint(path, map_location=device)
     model_cfg = checkpoint_model_config(payload, path)
-    model = ActorCritic(model_cfg, device=device)
     if mute and model_cfg.comm.variant == "none":
         raise CheckpointError(f"--mute: checkpoint {path} has no communication "
                               f"(its comm variant is 'none')")
+    model = ActorCritic(model_cfg, device=device)
     model.listen = not mute
     try:
         model.load_state_dict(payload["model"])
