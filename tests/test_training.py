@@ -16,7 +16,15 @@ from collavn.training.imitation import imitation_loss, imitation_update
 from collavn.training.ppo import critic_parameters, ppo_loss, ppo_update
 from collavn.training.presets import CPU_REASONS, preset_config, preset_deviations
 from collavn.training.rollout import compute_gae
-from collavn.training.trainer import build_run, collect_rollout, scene_window, sync_point
+from collavn.training.trainer import (
+    ScoreTally,
+    build_run,
+    collect_rollout,
+    message_columns,
+    message_weight,
+    scene_window,
+    sync_point,
+)
 from training_fixtures import tiny_config
 
 
@@ -198,10 +206,63 @@ def test_training_logs_communication_rates():
     _, stats = collect_rollout(run)
     assert 0.0 <= stats["comm/received_rate"] <= stats["comm/when_rate"] <= 1.0
     assert stats["comm/bytes_per_agent_step"] > 0
+    # where the scores sit against η, how much the cores read ω, ψ's bias
+    for kind in ("own", "teammate"):
+        assert 0.0 < stats[f"comm/{kind}_score"] < 1.0
+        assert 0.0 < stats[f"comm/{kind}_score_std"] < 0.5
+    assert stats["comm/psi_bias"] == float(run.model.towers[0].comm.psi_bias.detach())
+    assert 0.1 < stats["comm/actor_message_weight"] < 10  # fresh weights: comparable
+    with torch.no_grad():
+        run.model.towers[0].critic_core.weight_ih[:, message_columns(
+            run.model.towers[0], "critic_core")] = 0.0
+    assert message_weight(run.model)["comm/critic_message_weight"] == 0.0
     _, run, _ = _fixed_batch("no-com")
     _, stats = collect_rollout(run)
     assert (stats["comm/received_rate"], stats["comm/when_rate"],
             stats["comm/bytes_per_agent_step"]) == (0.0, 0.0, 0.0)
+    assert not any(k.endswith(("_score", "message_weight", "psi_bias")) for k in stats)
+
+
+def test_score_tally_separates_own_and_teammate_scores_of_active_agents():
+    scores = torch.tensor([[[0.9, 0.2, 0.7], [0.4, 0.6, 0.1], [0.3, 0.3, 0.3]]])
+    tally = ScoreTally()
+    tally.add(scores, torch.tensor([[True, True, False]]))  # the third agent is done
+    rates = tally.rates()
+    assert rates["own_score"] == pytest.approx(0.75)
+    assert rates["own_score_std"] == pytest.approx(0.15)
+    assert rates["teammate_score"] == pytest.approx(0.3)
+    assert rates["teammate_score_std"] == pytest.approx(0.1)
+    alone = ScoreTally()
+    alone.add(scores, torch.tensor([[True, False, False]]))
+    assert set(alone.rates()) == {"own_score", "own_score_std"}
+
+
+def test_comm_lr_scale_sets_the_messages_apart_and_zero_freezes_them():
+    from collavn.training.ppo import comm_parameters
+
+    cfg, run, rollout = _fixed_batch("ours")
+    assert len(run.optimizer.param_groups) == 1  # the default: one learning rate
+    cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, comm_lr_scale=0.0))
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    lrs = [g["lr"] for g in run.optimizer.param_groups]
+    assert lrs == [cfg.ppo.lr, 0.0]
+    comm = {id(p) for p in comm_parameters(run.model)}
+    assert {id(p) for p in run.optimizer.param_groups[1]["params"]} == comm
+    adv, ret = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
+                           rollout.truncated, rollout.last_value, 0.99, 0.95)
+    before = {n: p.detach().clone() for n, p in run.model.named_parameters()}
+    stats = ppo_update(run.model, run.optimizer, rollout, adv, ret, cfg.ppo, run.generator)
+    assert 0.0 < stats.comm_grad_norm < stats.grad_norm  # they were pulled on, not moved
+    moved = {n for n, p in run.model.named_parameters() if not torch.equal(p, before[n])}
+    assert moved and not any(".comm." in n for n in moved)
+    assert any(".actor_core." in n for n in moved)
+    with pytest.raises(ConfigError, match=r"--ppo\.comm-lr-scale must be a finite number"):
+        dataclasses.replace(cfg.ppo, comm_lr_scale=-0.5)
+    _, run, rollout = _fixed_batch("no-com")
+    adv, ret = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
+                           rollout.truncated, rollout.last_value, 0.99, 0.95)
+    stats = ppo_update(run.model, run.optimizer, rollout, adv, ret, cfg.ppo, run.generator)
+    assert stats.comm_grad_norm == 0.0 < stats.grad_norm
 
 
 def test_critic_warmup_moves_only_the_critic_and_lowers_the_value_loss(capsys):

@@ -104,7 +104,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
 
 #: Config fields added after format 3 (dotted paths), with the value meaning "as before":
 #: no readout (or the pooled one), every PPO epoch, the map encoder's first widths, the
-#: value loss's gradient reaching the messages.
+#: value loss's gradient reaching the messages, one learning rate for all.
 LATER_FIELDS: dict[str, Any] = {
     "model.readout": to_dict(ReadoutConfig(enabled=False)),
     "model.readout.ring": False,
@@ -112,6 +112,7 @@ LATER_FIELDS: dict[str, Any] = {
     "model.map.encoder_channels": [32, 64, 64],
     "ppo.target_kl": 0.0,
     "model.comm.critic_gradient": True,
+    "ppo.comm_lr_scale": 1.0,
 }
 
 

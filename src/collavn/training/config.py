@@ -104,9 +104,15 @@ class PPOConfig:
     """Stop an update's epochs after the first whose mean approximate KL between the
     collecting and the updated policy exceeds this (0 = always run ``update_epochs``);
     keeps fine-tuning from ``--init-from`` near the policy it started from."""
+    comm_lr_scale: float = 1.0
+    """The communication parameters' learning rate (F_query, F_key, F_value, ψ) as a
+    multiple of ``lr`` (1 = the same, 0 = frozen at their initial weights). A run started
+    ``--init-from`` a silent checkpoint reads ω through zero weights at first, so these
+    parameters get tiny gradients, which Adam turns into full-size steps."""
 
     def __post_init__(self) -> None:
         check_number("--ppo.target-kl", self.target_kl, allow_minimum=True)
+        check_number("--ppo.comm-lr-scale", self.comm_lr_scale, allow_minimum=True)
         for name in ("rollout_steps", "num_minibatches", "update_epochs"):
             check_count(f"--ppo.{name.replace('_', '-')}", getattr(self, name))
         check_count("--ppo.critic-warmup", self.critic_warmup, 0)

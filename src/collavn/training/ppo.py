@@ -33,6 +33,9 @@ class PPOStats:
         clip_fraction: Fraction of ratios outside ``[1 − ε, 1 + ε]``.
         loss: The total optimised loss.
         epochs: Epochs run (fewer than ``update_epochs`` when ``target_kl`` stopped them).
+        grad_norm: Norm of the whole gradient before clipping.
+        comm_grad_norm: Norm of the communication parameters' part of it (0 without
+            messages): how hard the losses pull on what is sent and when gates open.
     """
 
     policy_loss: float
@@ -42,6 +45,8 @@ class PPOStats:
     clip_fraction: float
     loss: float
     epochs: float
+    grad_norm: float = 0.0
+    comm_grad_norm: float = 0.0
 
 
 def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
@@ -91,6 +96,22 @@ def critic_parameters(model: ActorCritic) -> list[torch.nn.Parameter]:
     return params
 
 
+def comm_parameters(model: ActorCritic) -> list[torch.nn.Parameter]:
+    """The communication module's weights (F_query, F_key, F_value, ψ), every tower."""
+    params: list[torch.nn.Parameter] = []
+    for tower in model.towers:
+        assert isinstance(tower, AgentTower)
+        if tower.comm is not None:
+            params += [p for p in tower.comm.parameters() if p.requires_grad]
+    return params
+
+
+def grad_norm(params: list[torch.nn.Parameter]) -> float:
+    """The 2-norm of the gradients of ``params`` (those without one count as zero)."""
+    norms = [p.grad.detach().norm() for p in params if p.grad is not None]
+    return float(torch.stack(norms).norm()) if norms else 0.0
+
+
 def minibatch_envs(num_envs: int, num_minibatches: int,
                    generator: torch.Generator) -> list[Tensor]:
     """A random split of env indices into ``min(num_minibatches, num_envs)`` groups."""
@@ -121,6 +142,7 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Ro
     """
     params = [p for group in optimizer.param_groups for p in group["params"]]
     critic = {id(p) for p in critic_parameters(model)}
+    comm = comm_parameters(model)
     totals: dict[str, float] = {}
     count = epochs = 0
     for _ in range(cfg.update_epochs):
@@ -137,7 +159,9 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Ro
                 for p in params:
                     if id(p) not in critic:
                         p.grad = None
-            torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
+            stats["comm_grad_norm"] = grad_norm(comm)
+            stats["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(params,
+                                                                      cfg.max_grad_norm))
             optimizer.step()
             for k, v in stats.items():
                 totals[k] = totals.get(k, 0.0) + v

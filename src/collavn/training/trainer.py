@@ -57,7 +57,7 @@ from collavn.training.imitation import (
 )
 from collavn.training.interrupt import StopRequest
 from collavn.training.map_training import MapTrainer, policy_parameters
-from collavn.training.ppo import ppo_update
+from collavn.training.ppo import comm_parameters, ppo_update
 from collavn.training.rollout import Rollout, compute_gae
 
 CHECKPOINT = "checkpoint.pt"
@@ -151,11 +151,26 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
         install_encoder(model, encoder, cfg.env.camera_height)
     distributed.broadcast_parameters(model)
     set_train_mode(model)
-    optimizer = torch.optim.Adam(policy_parameters(model), lr=cfg.learning_rate, eps=1e-5)
+    optimizer = torch.optim.Adam(parameter_groups(model, cfg), lr=cfg.learning_rate, eps=1e-5)
     maps = MapTrainer(model, cfg.mapping, cfg.model.map.use_depth, info.seed(cfg.run.seed),
                       distributed.average_gradients if info.enabled else None)
     expert = OraclePolicy(env.scenes) if cfg.method_spec.imitation else None
     return Run(cfg, info, device, env, model, optimizer, maps, expert, scenes=scenes)
+
+
+def parameter_groups(model: ActorCritic, cfg: TrainConfig) -> list[dict[str, Any]]:
+    """The policy optimizer's parameter groups.
+
+    One group, or the communication parameters apart at ``lr × ppo.comm_lr_scale`` when
+    that is not 1 (PPO only; ``il`` trains no messages).
+    """
+    params = policy_parameters(model)
+    comm = {id(p) for p in comm_parameters(model)}
+    if cfg.ppo.comm_lr_scale == 1.0 or not comm or cfg.method_spec.imitation:
+        return [{"params": params}]
+    return [{"params": [p for p in params if id(p) not in comm]},
+            {"params": [p for p in params if id(p) in comm],
+             "lr": cfg.learning_rate * cfg.ppo.comm_lr_scale}]
 
 
 def scene_window(scenes: list[Scene], num_envs: int, k: int) -> list[Scene]:
@@ -204,14 +219,74 @@ def with_message_inputs(state: dict[str, torch.Tensor], model: ActorCritic
     """
     out = dict(state)
     for i, tower in enumerate(model.towers):
-        assert isinstance(tower, AgentTower) and tower.comm is not None
-        msg, emb = tower.comm.output_size, tower.embed_size
-        for core, at in (("actor_core", emb + tower.map_vector_size), ("critic_core", emb)):
+        assert isinstance(tower, AgentTower)
+        for core in ("actor_core", "critic_core"):
             key = f"towers.{i}.{core}.weight_ih"
-            old = state[key]
-            out[key] = torch.cat([old[:, :at], old.new_zeros(old.shape[0], msg),
-                                  old[:, at:]], dim=1)
+            old, cols = state[key], message_columns(tower, core)
+            out[key] = torch.cat([old[:, :cols.start],
+                                  old.new_zeros(old.shape[0], cols.stop - cols.start),
+                                  old[:, cols.start:]], dim=1)
     return out
+
+
+def message_columns(tower: AgentTower, core: str) -> slice:
+    """The input columns of ``tower``'s ``actor_core`` or ``critic_core`` that read ω."""
+    assert tower.comm is not None
+    at = tower.embed_size + (tower.map_vector_size if core == "actor_core" else 0)
+    return slice(at, at + tower.comm.output_size)
+
+
+def message_weight(model: ActorCritic) -> dict[str, float]:
+    """How much the GRU cores read ω, and where ψ's bias stands (towers averaged).
+
+    ``comm/actor_message_weight``: mean norm of the actor core's ω columns over the mean
+    norm of its other input columns (0 at ``--init-from`` a silent checkpoint, ~1 when ω
+    weighs like any other input); ``comm/critic_message_weight`` the same for the
+    critic; ``comm/psi_bias`` the bias b of ψ = σ(μᵀWκ/√d + b), which moves every score.
+    """
+    out: dict[str, list[float]] = {"comm/actor_message_weight": [],
+                                   "comm/critic_message_weight": [], "comm/psi_bias": []}
+    for tower in model.towers:
+        assert isinstance(tower, AgentTower)
+        if tower.comm is None:
+            continue
+        for core in ("actor_core", "critic_core"):
+            norms = getattr(tower, core).weight_ih.detach().norm(dim=0)
+            cols = torch.zeros_like(norms, dtype=torch.bool)
+            cols[message_columns(tower, core)] = True
+            ratio = norms[cols].mean() / norms[~cols].mean().clamp(min=1e-12)
+            out[f"comm/{core.split('_')[0]}_message_weight"].append(float(ratio))
+        out["comm/psi_bias"].append(float(tower.comm.psi_bias.detach()))
+    return {k: float(np.mean(v)) for k, v in out.items() if v}
+
+
+@dataclass
+class ScoreTally:
+    """The agents' scores over a rollout: s_{n,n} (own memory) and s_{n,m} (teammates).
+
+    The gates open where a score passes η (½ at N = 2), so where these sit against η
+    says whether messages flow and how far a gate is from flipping.
+    """
+
+    own: list[float] = field(default_factory=list)
+    teammate: list[float] = field(default_factory=list)
+
+    def add(self, scores: torch.Tensor, active: torch.Tensor) -> None:
+        """One step's ``(E, N, N)`` scores of the ``(E, N)`` active agents."""
+        active = active.bool()
+        eye = torch.eye(scores.shape[1], dtype=torch.bool, device=scores.device)
+        pairs = active.unsqueeze(2) & active.unsqueeze(1)
+        self.own += scores[pairs & eye].tolist()
+        self.teammate += scores[pairs & ~eye].tolist()
+
+    def rates(self) -> dict[str, float]:
+        """Mean and standard deviation of both kinds of score (empty kinds left out)."""
+        out: dict[str, float] = {}
+        for name, values in (("own", self.own), ("teammate", self.teammate)):
+            if values:
+                out[f"{name}_score"] = float(np.mean(values))
+                out[f"{name}_score_std"] = float(np.std(values))
+        return out
 
 
 def sync_point(run: Run) -> None:
@@ -245,7 +320,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     obs_t = obs_to_torch(run.obs, keys, device)
     rollout: Rollout | None = None
     beta = expert_probability(cfg.imitation, run.iteration)
-    comm = CommStats()
+    comm, scores = CommStats(), ScoreTally()
     start = time.perf_counter()
     for t in range(cfg.ppo.rollout_steps):
         start_t = episode_start(run.obs, device)
@@ -264,6 +339,8 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
             stored = torch.as_tensor(expert, dtype=torch.float32, device=device)
         rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value, out.percepts)
         comm.add(tally(out.message, obs_t["active"]))
+        if model.cfg.comm.variant != "none":
+            scores.add(out.message.scores, obs_t["active"])
         run.maps.observe(run.obs)
         run.obs, reward, terminated, truncated, info = run.env.step(actions)
         rollout.insert_outcome(t, reward, terminated, truncated)
@@ -275,6 +352,8 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
         rollout.last_value = model(obs_t, run.state, episode_start(run.obs, device)).value
     seconds = time.perf_counter() - start
     return rollout, {**{f"comm/{k}": v for k, v in comm.rates().items()},
+                     **{f"comm/{k}": v for k, v in scores.rates().items()},
+                     **message_weight(model),
                      "perf/collect_seconds": seconds,
                      **({"imitation/beta": beta} if run.expert is not None else {})}
 
