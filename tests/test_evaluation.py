@@ -166,9 +166,12 @@ def test_evaluation_reports_communication_per_method(door_scene, tmp_path, capsy
     assert muted["when_rate"] > 0.0  # its own gate still opens
     for policy, why in (("random", "the random policy sends none"),
                         (str(tmp_path / "no-com.pt"), "has no communication")):
+        # refused before --overwrite moves an earlier result aside
         assert main(["evaluate", "--policy", policy, "--mute", "--dataset", str(data),
-                     "--out", str(tmp_path / "refused"), *small]) == 2
+                     "--out", str(tmp_path / "muted"), "--overwrite", *small]) == 2
         assert why in capsys.readouterr().err
+        assert (tmp_path / "muted" / "records.jsonl").is_file()
+        assert not list(tmp_path.glob("muted.old-*"))
 
 
 def _block_runs(door_scene, variant: str, seed: int):

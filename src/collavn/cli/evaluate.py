@@ -14,6 +14,7 @@ from collavn.evaluation.benchmark import (
     write_results,
 )
 from collavn.files import prepare_output_dir
+from collavn.policies import check_mute
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,8 @@ class Evaluate(EvalConfig):
 
     def run(self) -> int:
         """Check the output directory, evaluate, write files, print the table."""
+        if self.mute:  # refused before the output directory is touched
+            check_mute(self.policy)
         moved = prepare_output_dir(self.out, overwrite=self.overwrite)
         if moved is not None:
             print(f"moved the previous results in {self.out} to {moved}", file=sys.stderr)

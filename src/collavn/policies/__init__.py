@@ -11,7 +11,13 @@ from typing import Any
 
 from collavn.errors import CollavnError
 from collavn.policies.base import CommStats, Policy, RandomPolicy
-from collavn.policies.checkpoint import CheckpointPolicy, load_policy
+from collavn.policies.checkpoint import (
+    CheckpointPolicy,
+    checkpoint_model_config,
+    load_checkpoint,
+    load_policy,
+    refuse_silent,
+)
 from collavn.policies.explorer import ExplorerPolicy
 from collavn.policies.oracle import OraclePolicy
 from collavn.scenes.scene import Scene
@@ -20,7 +26,18 @@ from collavn.scenes.scene import Scene
 NAMED_POLICIES = ("random", "explorer", "oracle")
 
 __all__ = ["NAMED_POLICIES", "CheckpointPolicy", "CommStats", "ExplorerPolicy", "OraclePolicy",
-           "Policy", "RandomPolicy", "load_policy", "make_policy"]
+           "Policy", "RandomPolicy", "check_mute", "load_policy", "make_policy"]
+
+
+def check_mute(name: str) -> None:
+    """Refuse ``--mute`` for a policy without messages (a named one, a silent checkpoint).
+
+    ``evaluate`` calls it before it touches its output directory.
+    """
+    if name in NAMED_POLICIES:
+        raise CollavnError(f"--mute cuts a checkpoint's messages; the {name} policy sends none")
+    if Path(name).exists():
+        refuse_silent(checkpoint_model_config(load_checkpoint(name), name), name)
 
 
 def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0, device: str = "cpu",
@@ -33,7 +50,7 @@ def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0, device: str =
         The policy and the env overrides it needs (privileged observations, image sizes).
     """
     if mute and name in NAMED_POLICIES:
-        raise CollavnError(f"--mute cuts a checkpoint's messages; the {name} policy sends none")
+        check_mute(name)
     if name == "random":
         return RandomPolicy(seed), {}
     if name == "explorer":

@@ -252,6 +252,13 @@ def _padded(x: torch.Tensor, size: int) -> torch.Tensor:
     return torch.cat([x, x[:1].expand(size - len(x), *x.shape[1:])])
 
 
+def refuse_silent(model_cfg: ModelConfig, path: str | Path) -> None:
+    """``--mute`` needs messages to cut: refuse a checkpoint whose model sends none."""
+    if model_cfg.comm.variant == "none":
+        raise CheckpointError(f"--mute: checkpoint {path} has no communication "
+                              f"(its comm variant is 'none')")
+
+
 def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
                 seed: int = 0, mute: bool = False) -> tuple[CheckpointPolicy, dict[str, Any]]:
     """A checkpoint as an evaluation policy, plus the env settings it needs.
@@ -264,9 +271,8 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
     """
     payload = load_checkpoint(path, map_location=device)
     model_cfg = checkpoint_model_config(payload, path)
-    if mute and model_cfg.comm.variant == "none":
-        raise CheckpointError(f"--mute: checkpoint {path} has no communication "
-                              f"(its comm variant is 'none')")
+    if mute:
+        refuse_silent(model_cfg, path)
     model = ActorCritic(model_cfg, device=device)
     model.listen = not mute
     try:
