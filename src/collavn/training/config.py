@@ -106,9 +106,10 @@ class PPOConfig:
     keeps fine-tuning from ``--init-from`` near the policy it started from."""
     comm_lr_scale: float = 1.0
     """The communication parameters' learning rate (F_query, F_key, F_value, ψ) as a
-    multiple of ``lr`` (1 = the same, 0 = frozen at their initial weights). A run started
-    ``--init-from`` a silent checkpoint reads ω through zero weights at first, so these
-    parameters get tiny gradients, which Adam turns into full-size steps."""
+    multiple of ``lr`` (1 = the same, 0 = frozen at their initial weights). At the full
+    rate Adam's normalised steps move ψ's matrix coherently, every pair's score at once,
+    and the gates drift shut (below η they get almost no gradient back); 0.1 kept them
+    open in our runs (README, "Why the gates close")."""
 
     def __post_init__(self) -> None:
         check_number("--ppo.target-kl", self.target_kl, allow_minimum=True)
