@@ -160,7 +160,7 @@ def test_stochastic_evaluation_samples_reproducibly_and_leaves_torch_rng_alone(
 def test_init_from_a_silent_checkpoint_starts_a_talking_run_with_its_policy(tmp_path):
     """il / no-com → ours: the message inputs start at zero, so the first policy agrees."""
     from collavn.training.distributed import DistInfo
-    from collavn.training.trainer import build_run, checkpoint_payload
+    from collavn.training.trainer import build_run, checkpoint_payload, message_weight
 
     silent = build_run(tiny_config("no-com", out=str(tmp_path / "a")), DistInfo(),
                        torch.device("cpu"))
@@ -175,6 +175,8 @@ def test_init_from_a_silent_checkpoint_starts_a_talking_run_with_its_policy(tmp_
     msg = tower.comm.output_size
     cut = tower.embed_size + tower.map_vector_size
     assert not tower.actor_core.weight_ih[:, cut:cut + msg].any()
+    weights = message_weight(talking.model)  # the logged weight of ω: none yet, both cores
+    assert weights["comm/actor_message_weight"] == weights["comm/critic_message_weight"] == 0.0
     torch.manual_seed(0)
     e, n = 2, 2
     obs = {"panorama": torch.randint(0, 255, (e, n, 3, 16, 64), dtype=torch.uint8),

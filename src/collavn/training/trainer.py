@@ -162,11 +162,11 @@ def parameter_groups(model: ActorCritic, cfg: TrainConfig) -> list[dict[str, Any
     """The policy optimizer's parameter groups.
 
     One group, or the communication parameters apart at ``lr × ppo.comm_lr_scale`` when
-    that is not 1 (PPO only; ``il`` trains no messages).
+    that is not 1 and the model has any (``no-com`` and ``il`` have none).
     """
     params = policy_parameters(model)
     comm = {id(p) for p in comm_parameters(model)}
-    if cfg.ppo.comm_lr_scale == 1.0 or not comm or cfg.method_spec.imitation:
+    if cfg.ppo.comm_lr_scale == 1.0 or not comm:
         return [{"params": params}]
     return [{"params": [p for p in params if id(p) not in comm]},
             {"params": [p for p in params if id(p) in comm],
