@@ -101,6 +101,25 @@ def test_pretraining_lowers_the_loss_on_a_tiny_set(l_corridor, model):
         assert 0.0 <= metrics[f"val/{label}_accuracy"] <= 1.0
 
 
+def test_held_out_accuracy_is_scored_per_episode_difficulty(l_corridor, monkeypatch):
+    """A perception right only from 3 m on scores 0 at easy distances, 1 at medium ones."""
+    import collavn.perception.pretrain as pretrain_module
+
+    torch.set_num_threads(1)
+    _, trainer = _tiny_pretrain(l_corridor, TINY_MODEL)
+
+    def right_from_3m(pred, target):
+        far = torch.expm1(target["distance"]) >= 3.0
+        return {k: far for k in pretrain_module.PAIR_LABELS}
+
+    monkeypatch.setattr(pretrain_module, "pair_hits", right_from_3m)
+    metrics = trainer.evaluate(pairs=256)
+    for label in pretrain_module.PAIR_LABELS:
+        assert metrics[f"val/{label}_accuracy_easy"] == 0.0
+        assert metrics[f"val/{label}_accuracy_medium"] == 1.0
+    assert "val/free_space_accuracy_easy" not in metrics  # not a pair label
+
+
 def _encoder_file(tmp_path, model=TINY_MODEL, env=None):
     env = env or tiny_config().env
     model = dataclasses.replace(model, panorama_shape=(3, env.panorama_height,

@@ -46,6 +46,17 @@ def main(args: Sequence[str], prog: str = "collavn pretrain") -> int:
     from collavn.perception.pretrain import pretrain
 
     result = pretrain(config)
-    shown = ", ".join(f"{k.removeprefix('val/')} {v:.3f}" for k, v in result.metrics.items())
+    from collavn.datasets.episode import DIFFICULTY_BINS
+
+    def band(key: str) -> str:
+        return next((b for b in DIFFICULTY_BINS if key.endswith(f"_{b}")), "")
+
+    shown = ", ".join(f"{k.removeprefix('val/')} {v:.3f}" for k, v in result.metrics.items()
+                      if not band(k))
     print(f"{result.steps} steps; held out: {shown}; encoder {result.path}")
+    for b in DIFFICULTY_BINS:  # the pair labels at the distances of each difficulty
+        parts = [f"{k.removeprefix('val/').removesuffix(f'_accuracy_{b}')} {v:.3f}"
+                 for k, v in result.metrics.items() if band(k) == b]
+        if parts:
+            print(f"  goal at {b} distances: {', '.join(parts)}")
     return 0

@@ -20,7 +20,7 @@ from torch import Tensor
 
 from collavn.models.readout import LABELS
 
-__all__ = ["LABELS", "accuracies", "losses", "targets"]
+__all__ = ["LABELS", "accuracies", "losses", "pair_hits", "targets"]
 
 
 def targets(batch: Mapping[str, Tensor], bins: int, max_distance: float) -> dict[str, Tensor]:
@@ -56,19 +56,28 @@ def losses(pred: Mapping[str, Tensor], target: Mapping[str, Tensor]) -> dict[str
     return out
 
 
-def accuracies(pred: Mapping[str, Tensor], target: Mapping[str, Tensor]) -> dict[str, Tensor]:
-    """Per-label fraction right in a batch (see the module docstring)."""
-    ok = target["reachable"]
+def pair_hits(pred: Mapping[str, Tensor], target: Mapping[str, Tensor]) -> dict[str, Tensor]:
+    """Per pair, whether each pair label is right (see the module docstring).
+
+    ``(B,)`` bool for the path bearing, the goal bearing and the distance; meaningful only
+    where the goal is reachable.
+    """
     out: dict[str, Tensor] = {}
     for k in ("path_bearing", "goal_bearing"):
         bins = pred[k].shape[-1]
         gap = (pred[k].argmax(-1) - target[k]).remainder(bins)
-        right = (gap <= 1) | (gap >= bins - 1)
-        out[k] = right[ok].float().mean() if ok.any() else torch.tensor(float("nan"))
+        out[k] = (gap <= 1) | (gap >= bins - 1)
     d_pred, d_true = torch.expm1(pred["distance"]), torch.expm1(target["distance"])
-    right = (d_pred - d_true).abs() <= torch.maximum(torch.full_like(d_true, 0.5),
-                                                     0.25 * d_true)
-    out["distance"] = right[ok].float().mean() if ok.any() else torch.tensor(float("nan"))
+    out["distance"] = (d_pred - d_true).abs() <= torch.maximum(torch.full_like(d_true, 0.5),
+                                                               0.25 * d_true)
+    return out
+
+
+def accuracies(pred: Mapping[str, Tensor], target: Mapping[str, Tensor]) -> dict[str, Tensor]:
+    """Per-label fraction right in a batch (see the module docstring)."""
+    ok = target["reachable"]
+    out = {k: right[ok].float().mean() if ok.any() else torch.tensor(float("nan"))
+           for k, right in pair_hits(pred, target).items()}
     f_pred, f_true = torch.expm1(pred["free_space"]), torch.expm1(target["free_space"])
     out["free_space"] = ((f_pred - f_true).abs()
                          <= torch.maximum(torch.full_like(f_true, 0.25), 0.25 * f_true)

@@ -26,17 +26,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from collavn.datasets.episode import DIFFICULTY_BINS, in_bin
 from collavn.models.frames import FramePerception
 from collavn.models.readout import PerceptionReadout
 from collavn.perception.config import PretrainConfig
 from collavn.perception.encoder import encoder_spec, save_encoder
 from collavn.perception.frames import FrameSet, render_frames, sample_batch
-from collavn.perception.heads import LABELS, accuracies, losses, targets
+from collavn.perception.heads import LABELS, accuracies, losses, pair_hits, targets
 from collavn.scenes import load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.threads import apply_threads
 
 ENCODER_FILE = "encoder.pt"
+#: The labels of a (panorama, goal) pair, scored per episode difficulty too.
+PAIR_LABELS = ("path_bearing", "goal_bearing", "distance")
 
 
 @dataclass(frozen=True)
@@ -87,12 +90,19 @@ class Pretrainer:
                                                          for k, v in parts.items()}}
 
     @torch.no_grad()
-    def evaluate(self, pairs: int = 1024) -> dict[str, float]:
-        """Held-out accuracy and loss per label on ``pairs`` val pairs (fixed draw)."""
+    def evaluate(self, pairs: int = 4096) -> dict[str, float]:
+        """Held-out accuracy and loss per label on ``pairs`` val pairs (fixed draw).
+
+        The pair labels are also scored per episode difficulty — the pairs whose geodesic
+        distance lies in that bin (``val/path_bearing_accuracy_easy``, …): a perception
+        that is right far from the goal (where the way out of the room is the answer) can
+        still be wrong at the distances an episode is decided.
+        """
         self.frames.eval()
         p = self.cfg.perception
         rng = np.random.default_rng(12345)
         right: dict[str, list[float]] = {k: [] for k in LABELS}
+        bands = {b: {k: [0, 0] for k in PAIR_LABELS} for b in DIFFICULTY_BINS}
         loss = []
         for _ in range(max(1, pairs // p.batch_size)):
             batch = sample_batch(self.val, p.batch_size, p, rng, augment=False)
@@ -102,8 +112,16 @@ class Pretrainer:
             loss.append(float(torch.stack(list(losses(pred, target).values())).sum()))
             for k, v in accuracies(pred, target).items():
                 right[k].append(float(v))
+            hits = pair_hits(pred, target)
+            for band, counts in bands.items():
+                mask = target["reachable"] & torch.as_tensor(in_bin(batch["distance"], band))
+                for k, c in counts.items():
+                    c[0] += int(hits[k][mask].sum())
+                    c[1] += int(mask.sum())
         return {"val/loss": float(np.mean(loss)),
-                **{f"val/{k}_accuracy": float(np.nanmean(v)) for k, v in right.items()}}
+                **{f"val/{k}_accuracy": float(np.nanmean(v)) for k, v in right.items()},
+                **{f"val/{k}_accuracy_{band}": hit / n for band, counts in bands.items()
+                   for k, (hit, n) in counts.items() if n}}
 
 
 def load_frames(cfg: PretrainConfig, progress: object) -> tuple[FrameSet, FrameSet]:
