@@ -514,12 +514,15 @@ def test_a_sequence_matches_the_step_by_step_ring_buffer(slots, interval):
         assert torch.allclose(after.mem_keys, keys, atol=1e-6)
         assert torch.allclose(after.mem_values, values, atol=1e-6)
         assert torch.equal(after.mem_count, count) and torch.equal(after.steps, steps)
-        # one step at a time (collection) gives bit-identical messages (PPO's replay)
+        # one step at a time (collection) gives the messages PPO's replay gives, to the
+        # last bit or two: on AVX-512 CPUs torch's vectorised sigmoid rounds an element
+        # by its place in the vector loop, and 9 steps at once place them differently
+        # from one step (measured 3e-8 on AMD EPYC; bit-identical on other machines)
         one, state1 = [], state
         for t in range(t_len):
             _, w, state1 = model._communicate(o[t:t + 1], s[t:t + 1], state1,
                                               starts[t:t + 1], active[t:t + 1])
             one.append(w[0])
-    assert torch.equal(torch.stack(one), omega)
-    assert torch.equal(state1.mem_values, after.mem_values)
+    torch.testing.assert_close(torch.stack(one), omega, rtol=0, atol=1e-6)
+    torch.testing.assert_close(state1.mem_values, after.mem_values, rtol=0, atol=1e-6)
     assert (count.max() > slots) == (slots < 80)  # the small buffers wrapped around
