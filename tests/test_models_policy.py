@@ -195,3 +195,59 @@ def test_gru_step_is_pytorchs_gru_cell():
     x, h = torch.randn(9, 7), torch.randn(9, 5)
     gates_in = torch.nn.functional.linear(x, cell.weight_ih, cell.bias_ih)
     torch.testing.assert_close(gru_step(cell, gates_in, h), cell(x, h), rtol=1e-6, atol=1e-6)
+
+
+def _fit_heads(modes: int, steps: int = 300) -> torch.Tensor:
+    """Fit the actor head of one state to an expert that turns hard left or hard right,
+    half the time each, by likelihood; returns the deterministic action."""
+    from collavn.models.policy import action_distribution, action_mean
+
+    torch.manual_seed(0)
+    tower = ActorCritic(tiny("none", action_modes=modes)).towers[0]
+    h = torch.randn(1, 32).expand(64, 32)  # one state: nothing tells the sides apart
+    turn = torch.where(torch.arange(64) % 2 == 0, 0.8, -0.8)
+    expert = torch.stack([torch.full((64,), 0.1), turn], dim=1)
+    params = [tower.actor_mean.weight, tower.actor_mean.bias, tower.log_std,
+              *([] if tower.actor_modes is None else tower.actor_modes.parameters())]
+    opt = torch.optim.Adam(params, lr=0.03)
+    for _ in range(steps):
+        mean, log_std, logits, _ = tower.heads(h, torch.zeros(64, 16))
+        loss = -action_distribution(mean, log_std, logits).log_prob(expert).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        return action_mean(action_distribution(*tower.heads(h, torch.zeros(64, 16))[:3]))
+
+
+def test_one_gaussian_averages_a_left_right_choice_into_straight_on_a_mixture_picks_one():
+    one, two = _fit_heads(1), _fit_heads(2)
+    assert one[:, 1].abs().max() < 0.1  # the mean of ±0.8: into whatever is ahead
+    assert torch.allclose(two[:, 1].abs(), torch.full((64,), 0.8), atol=0.05)
+    assert (two[:, 1] == two[0, 1]).all()  # the same choice for the same state
+
+
+def test_mixture_log_prob_mean_and_entropy_by_hand():
+    from torch.distributions import Independent, Normal
+
+    from collavn.models.policy import action_distribution, action_mean, action_scale
+
+    g = torch.Generator().manual_seed(1)
+    mean, logits = torch.randn(5, 3, 2, generator=g), torch.randn(5, 3, generator=g)
+    log_std = torch.randn(5, 3, 2, generator=g) * 0.3
+    dist = action_distribution(mean, log_std, logits)
+    x = torch.randn(5, 2, generator=g)
+    comp = Normal(mean, log_std.exp()).log_prob(x[:, None]).sum(-1)  # (5, 3)
+    want = torch.logsumexp(comp + torch.log_softmax(logits, -1), -1)
+    torch.testing.assert_close(dist.log_prob(x), want)
+    top = logits.argmax(-1)
+    assert torch.equal(action_mean(dist), mean[torch.arange(5), top])
+    assert torch.equal(action_scale(dist), log_std.exp()[torch.arange(5), top])
+    samples = dist.sample((4000,))
+    entropy = -dist.log_prob(samples).mean(0)  # Monte Carlo
+    assert (dist.entropy() >= entropy - 0.05).all()
+    one = action_distribution(mean[:, :1], log_std[:, :1], logits[:, :1])
+    assert isinstance(one, Independent)  # one component: the plain Gaussian
+    assert torch.equal(one.mean, mean[:, 0]) and torch.equal(action_mean(one), mean[:, 0])
+    with pytest.raises(ValueError, match="action_modes"):
+        tiny(action_modes=0)

@@ -199,6 +199,12 @@ class ModelConfig:
             body can drive straight each way, read off the depth panorama — the
             explorer's sense, so a policy can stop pushing into walls (not in the paper).
         log_std_init: Initial log standard deviation of the Gaussian policy.
+        action_modes: Components of the action distribution: 1 = one diagonal Gaussian
+            (the paper's); K > 1 = a mixture of K Gaussians with learned weights (shared
+            σ), whose deterministic action is the mean of its most probable component.
+            Where the expert goes left or right for reasons the policy cannot see (an
+            obstacle ahead, the goal out of sight), one Gaussian's mean averages the two
+            into "straight on" — into the wall; a mixture keeps both and picks one.
         per_agent_params: One set of weights per agent slot instead of shared weights.
         max_agents: Number of agent slots when ``per_agent_params`` (ignored otherwise).
         map: The map module.
@@ -219,6 +225,7 @@ class ModelConfig:
     odometry_input: bool = False
     free_space_input: int = 0
     log_std_init: float = -0.5
+    action_modes: int = 1
     per_agent_params: bool = False
     max_agents: int = 4
     map: MapConfig = field(default_factory=MapConfig)
@@ -229,6 +236,8 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if self.free_space_input < 0:
             raise ValueError(f"free_space_input must be ≥ 0, got {self.free_space_input}")
+        if self.action_modes < 1:
+            raise ValueError(f"action_modes must be ≥ 1, got {self.action_modes}")
         if self.readout.enabled and self.readout.ring and not self.goal_match.enabled:
             raise ValueError("readout.ring reads the goal matcher's feature columns: "
                              "enable goal_match too")

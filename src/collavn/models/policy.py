@@ -17,9 +17,12 @@ Observation contract (one dict of batched tensors, ``E`` envs × ``N`` agents; a
 ``episode_start`` bool ``(E, N)`` marks observations that begin a new episode; the state
 of those agents is cleared *before* the observation is used (odometry ignored).
 
-Actions: a diagonal Gaussian over R² (state-independent learned log-std). The env gets
-``clip(raw, -1, 1)``; log-probabilities and entropies are those of the *unclipped* raw
-sample, which PPO must store and pass back to :meth:`ActorCritic.evaluate_actions`.
+Actions: a diagonal Gaussian over R² (state-independent learned log-std), or with
+``ModelConfig.action_modes = K > 1`` a mixture of K such Gaussians (learned weights,
+shared σ; :class:`ActionMixture`). The env gets ``clip(raw, -1, 1)``; log-probabilities
+and entropies are those of the *unclipped* raw sample, which PPO must store and pass back
+to :meth:`ActorCritic.evaluate_actions`. The deterministic action is
+:func:`action_mean`: the Gaussian's mean, the most probable component's mean.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from typing import cast
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
-from torch.distributions import Independent, Normal
+from torch.distributions import Categorical, Distribution, Independent, MixtureSameFamily, Normal
 
 from collavn.envs.free_space import FREE_SPACE_RANGE
 from collavn.models.communication import (
@@ -85,9 +88,19 @@ class AgentTower(FramePerception):
         self.critic_gradient = cfg.comm.critic_gradient
         self.actor_core = nn.GRUCell(emb + goal + map_dim + msg, cfg.hidden_size)
         self.critic_core = nn.GRUCell(critic_in, cfg.critic_hidden_size)
-        self.actor_mean = nn.Linear(cfg.hidden_size, ACTION_DIM)
+        modes = self.action_modes = cfg.action_modes
+        self.actor_mean = nn.Linear(cfg.hidden_size, ACTION_DIM * modes)
         nn.init.orthogonal_(self.actor_mean.weight, gain=0.01)
         nn.init.zeros_(self.actor_mean.bias)
+        # K > 1: mixture weights, and components that start apart — turning from hard
+        # right to hard left — so each can take one side of a choice from the first update
+        self.actor_modes = nn.Linear(cfg.hidden_size, modes) if modes > 1 else None
+        if self.actor_modes is not None:
+            nn.init.orthogonal_(self.actor_modes.weight, gain=0.01)
+            nn.init.zeros_(self.actor_modes.bias)
+            with torch.no_grad():
+                self.actor_mean.bias.view(modes, ACTION_DIM)[:, 1] = torch.linspace(
+                    -0.5, 0.5, modes)
         self.critic_value = nn.Linear(cfg.critic_hidden_size, 1)
         self.log_std = nn.Parameter(torch.full((ACTION_DIM,), cfg.log_std_init))
 
@@ -149,11 +162,66 @@ class AgentTower(FramePerception):
         return gru_step(self.actor_core, actor_in, actor_h), gru_step(self.critic_core,
                                                                       critic_in, critic_h)
 
-    def heads(self, actor_h: Tensor, critic_h: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """Actor and critic heads: mean ``(B, 2)``, log_std ``(B, 2)``, value ``(B,)``."""
-        mean = self.actor_mean(actor_h)
-        return (mean, self.log_std.expand_as(mean),
+    def heads(self, actor_h: Tensor, critic_h: Tensor
+              ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """Actor and critic heads: means, log_std, mixture logits and the value.
+
+        Shapes ``(B, K, 2)``, ``(B, K, 2)``, ``(B, K)`` (zeros for K = 1) and ``(B,)``.
+        """
+        mean = self.actor_mean(actor_h).unflatten(-1, (self.action_modes, ACTION_DIM))
+        logits = (mean.new_zeros(mean.shape[:-1]) if self.actor_modes is None
+                  else self.actor_modes(actor_h))
+        return (mean, self.log_std.expand_as(mean), logits,
                 self.critic_value(critic_h).squeeze(-1))
+
+
+class ActionMixture(MixtureSameFamily):
+    """A mixture of diagonal Gaussians over raw actions (``ModelConfig.action_modes``).
+
+    Its entropy (no closed form) is the upper bound H(weights) + Σ_k w_k H(component k),
+    which PPO's entropy bonus uses; :func:`action_mean` is the most probable component's
+    mean.
+    """
+
+    def entropy(self) -> Tensor:
+        """H(weights) + Σ_k w_k H(N_k) (≥ the mixture's entropy)."""
+        weights = self.mixture_distribution
+        return weights.entropy() + (weights.probs
+                                    * self.component_distribution.entropy()).sum(-1)
+
+
+def action_distribution(mean: Tensor, log_std: Tensor, logits: Tensor) -> Distribution:
+    """The policy's distribution from :meth:`AgentTower.heads` (any leading batch shape).
+
+    One component: the diagonal Gaussian itself (bit-identical to a model without
+    modes); more: an :class:`ActionMixture`.
+    """
+    if mean.shape[-2] == 1:
+        return Independent(Normal(mean[..., 0, :], log_std[..., 0, :].exp()), 1)
+    return ActionMixture(Categorical(logits=logits),
+                         Independent(Normal(mean, log_std.exp()), 1))
+
+
+def _top_normal(dist: Distribution) -> tuple[Tensor, Tensor]:
+    """Mean and std ``(..., 2)`` of the Gaussian, or of the most probable component."""
+    if isinstance(dist, ActionMixture):
+        normal = cast(Independent, dist.component_distribution).base_dist
+        k = dist.mixture_distribution.logits.argmax(-1)[..., None, None]
+        index = k.expand(*k.shape[:-2], 1, ACTION_DIM)
+        return (normal.loc.gather(-2, index).squeeze(-2),
+                normal.scale.gather(-2, index).squeeze(-2))
+    normal = cast(Independent, dist).base_dist
+    return normal.loc, normal.scale
+
+
+def action_mean(dist: Distribution) -> Tensor:
+    """The deterministic action: the Gaussian's mean, or the most probable component's."""
+    return _top_normal(dist)[0]
+
+
+def action_scale(dist: Distribution) -> Tensor:
+    """The standard deviation of :func:`action_mean`'s component ``(..., 2)``."""
+    return _top_normal(dist)[1]
 
 
 def gru_step(cell: nn.GRUCell, gates_in: Tensor, h: Tensor) -> Tensor:
@@ -172,7 +240,8 @@ class PolicyStep:
     """Output of :meth:`ActorCritic.forward`.
 
     Attributes:
-        dist: Gaussian over raw actions, batch shape ``(E, N)``, event shape ``(2,)``.
+        dist: Distribution over raw actions, batch shape ``(E, N)``, event shape ``(2,)``
+            (:func:`action_distribution`).
         value: ``(E, N)`` critic value.
         state: The new recurrent state.
         map_logits: ``(E, N, 2, m, m)`` local map prediction (for ``map_loss``); ``None``
@@ -181,7 +250,7 @@ class PolicyStep:
         percepts: This step's percepts (:meth:`ActorCritic.perceive`).
     """
 
-    dist: Independent
+    dist: Distribution
     value: Tensor
     state: AgentState
     map_logits: Tensor | None
@@ -233,7 +302,8 @@ class Unrolled:
     """``T`` steps of :meth:`ActorCritic.forward` (internal).
 
     Attributes:
-        mean: ``(T, E, N, 2)``; log_std: ``(T, E, N, 2)``; value: ``(T, E, N)``.
+        mean: ``(T, E, N, K, 2)``; log_std: ``(T, E, N, K, 2)``; logits:
+        ``(T, E, N, K)``; value: ``(T, E, N)``.
         state: The state after the last step (its ``grid`` and ``pose`` are the ones
             before the first step when the map tracking came from stored percepts:
             nothing re-tracked them; :meth:`ActorCritic.evaluate_actions` drops it).
@@ -243,6 +313,7 @@ class Unrolled:
 
     mean: Tensor
     log_std: Tensor
+    logits: Tensor
     value: Tensor
     state: AgentState
     percepts: Percepts
@@ -333,7 +404,7 @@ class ActorCritic(nn.Module):
         run = self._unroll({k: v[None] for k, v in obs.items()}, state, episode_start[None],
                            None if percepts is None else {k: v[None] for k, v in
                                                           percepts.items()})
-        dist = Independent(Normal(run.mean[0], run.log_std[0].exp()), 1)
+        dist = action_distribution(run.mean[0], run.log_std[0], run.logits[0])
         p = {k: v[0] for k, v in run.percepts.items()}
         return PolicyStep(dist, run.value[0], run.state, p.get("map_logits"),
                           run.messages[0], p)
@@ -343,7 +414,7 @@ class ActorCritic(nn.Module):
             deterministic: bool = False) -> ActOutput:
         """Sample (or take the mean of) the policy for one step, without gradients."""
         step = self(obs, state, episode_start)
-        raw = step.dist.mean if deterministic else step.dist.sample()
+        raw = action_mean(step.dist) if deterministic else step.dist.sample()
         return ActOutput(raw.clamp(-1.0, 1.0), raw, step.dist.log_prob(raw), step.value,
                          step.state, step.message.bytes_sent, step.message, step.percepts)
 
@@ -367,7 +438,7 @@ class ActorCritic(nn.Module):
             percepts: Stored percepts ``(T, E, N, ...)`` (see :meth:`forward`).
         """
         run = self._unroll(obs, state, episode_start, percepts)
-        dist = Independent(Normal(run.mean, run.log_std.exp()), 1)
+        dist = action_distribution(run.mean, run.log_std, run.logits)
         return EvaluateOutput(dist.log_prob(raw_actions), dist.entropy(), run.value)
 
     def _unroll(self, obs: Mapping[str, Tensor], state: AgentState, starts: Tensor,
@@ -434,11 +505,11 @@ class ActorCritic(nn.Module):
             actor_hs.append(a_new)
             critic_hs.append(c_new)
             actor_h, critic_h = kept(t, a_new, a_h), kept(t, c_new, c_h)
-        mean, log_std, value = self._over_steps(AgentTower.heads, torch.stack(actor_hs),
-                                                torch.stack(critic_hs))
+        mean, log_std, logits, value = self._over_steps(
+            AgentTower.heads, torch.stack(actor_hs), torch.stack(critic_hs))
         final = replace(talk, actor_h=actor_h, critic_h=critic_h, grid=grid,
                         features=features, pose=pose)
-        return Unrolled(mean, log_std, value, final, p, messages)
+        return Unrolled(mean, log_std, logits, value, final, p, messages)
 
     def _over_steps(self, fn: Callable[..., tuple[Tensor, ...]],
                     *args: Tensor | None) -> tuple[Tensor, ...]:
@@ -458,7 +529,9 @@ class ActorCritic(nn.Module):
         computed for all steps at once, :func:`plan_memory` says which of them (or of the
         memory before the sequence) fill every slot at every step, and all steps are
         matched as one batch. One step at collection and the same step replayed by PPO
-        go through the same operations (the first epoch's log-probs are exact).
+        go through the same operations (the first epoch's log-probs are exact, up to the
+        last bit where a CPU's vectorised sigmoid rounds by an element's place in the
+        loop).
 
         Returns:
             Each step's message, ω ``(T, E, N, value_dim)``, and ``state`` with the

@@ -31,7 +31,7 @@ from collavn.errors import CheckpointError, ConfigError
 from collavn.files import atomic_write, sha256_hex
 from collavn.models.communication import Message, communication_counts
 from collavn.models.config import ModelConfig, ReadoutConfig
-from collavn.models.policy import ActorCritic
+from collavn.models.policy import ActorCritic, action_mean, action_scale
 from collavn.models.state import AgentState
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
 from collavn.policies.base import CommStats, EpisodeRandom
@@ -104,7 +104,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
 
 #: Config fields added after format 3 (dotted paths), with the value meaning "as before":
 #: no readout (or the pooled one), every PPO epoch, the map encoder's first widths, the
-#: value loss's gradient reaching the messages, one learning rate for all.
+#: value loss's gradient reaching the messages, one learning rate for all, one Gaussian.
 LATER_FIELDS: dict[str, Any] = {
     "model.readout": to_dict(ReadoutConfig(enabled=False)),
     "model.readout.ring": False,
@@ -113,6 +113,7 @@ LATER_FIELDS: dict[str, Any] = {
     "ppo.target_kl": 0.0,
     "model.comm.critic_gradient": True,
     "ppo.comm_lr_scale": 1.0,
+    "model.action_modes": 1,
 }
 
 
@@ -230,8 +231,8 @@ class CheckpointPolicy:
                 part = state.select_envs(real)
                 step = self.model(block, AgentState.cat([part] + [part.select_envs(
                     slice(0, 1))] * (size - k)), _padded(start[real], size))
-                means.append(step.dist.mean[:k])
-                scales.append(step.dist.base_dist.scale[:k])
+                means.append(action_mean(step.dist)[:k])
+                scales.append(action_scale(step.dist)[:k])
                 states.append(step.state.select_envs(slice(0, k)))
                 self.comm.add(tally(step.message, block["active"]))
         raw = torch.cat(means)
