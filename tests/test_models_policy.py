@@ -230,7 +230,12 @@ def test_one_gaussian_averages_a_left_right_choice_into_straight_on_a_mixture_pi
 def test_mixture_log_prob_mean_and_entropy_by_hand():
     from torch.distributions import Independent, Normal
 
-    from collavn.models.policy import action_distribution, action_mean, action_scale
+    from collavn.models.policy import (
+        action_components,
+        action_distribution,
+        action_mean,
+        pick_component,
+    )
 
     g = torch.Generator().manual_seed(1)
     mean, logits = torch.randn(5, 3, 2, generator=g), torch.randn(5, 3, generator=g)
@@ -242,12 +247,23 @@ def test_mixture_log_prob_mean_and_entropy_by_hand():
     torch.testing.assert_close(dist.log_prob(x), want)
     top = logits.argmax(-1)
     assert torch.equal(action_mean(dist), mean[torch.arange(5), top])
-    assert torch.equal(action_scale(dist), log_std.exp()[torch.arange(5), top])
+    loc, scale, parts_logits = action_components(dist)
+    assert torch.equal(pick_component(loc, scale, parts_logits)[1],
+                       log_std.exp()[torch.arange(5), top])
+    # a uniform draw picks each component with its weight's probability (--stochastic)
+    u = (torch.arange(6000) + 0.5) / 6000
+    picked, _ = pick_component(loc.expand(6000, 5, 3, 2), scale.expand(6000, 5, 3, 2),
+                               parts_logits.expand(6000, 5, 3), u[:, None].expand(6000, 5))
+    share = (picked[..., None, :] == mean).all(-1).float().mean(0)  # (5, 3)
+    torch.testing.assert_close(share, torch.softmax(logits, -1), rtol=0, atol=1e-3)
     samples = dist.sample((4000,))
     entropy = -dist.log_prob(samples).mean(0)  # Monte Carlo
     assert (dist.entropy() >= entropy - 0.05).all()
     one = action_distribution(mean[:, :1], log_std[:, :1], logits[:, :1])
     assert isinstance(one, Independent)  # one component: the plain Gaussian
     assert torch.equal(one.mean, mean[:, 0]) and torch.equal(action_mean(one), mean[:, 0])
+    one_parts = action_components(one)
+    one_mean, one_std = pick_component(*one_parts, u=torch.rand(5))
+    assert torch.equal(one_mean, mean[:, 0]) and torch.equal(one_std, log_std[:, 0].exp())
     with pytest.raises(ValueError, match="action_modes"):
         tiny(action_modes=0)

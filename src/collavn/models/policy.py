@@ -202,26 +202,39 @@ def action_distribution(mean: Tensor, log_std: Tensor, logits: Tensor) -> Distri
                          Independent(Normal(mean, log_std.exp()), 1))
 
 
-def _top_normal(dist: Distribution) -> tuple[Tensor, Tensor]:
-    """Mean and std ``(..., 2)`` of the Gaussian, or of the most probable component."""
+def action_components(dist: Distribution) -> tuple[Tensor, Tensor, Tensor]:
+    """Means and stds ``(..., K, 2)`` and mixture logits ``(..., K)`` of a distribution.
+
+    Of :func:`action_distribution`'s output; the Gaussian is one component, logit 0.
+    """
     if isinstance(dist, ActionMixture):
         normal = cast(Independent, dist.component_distribution).base_dist
-        k = dist.mixture_distribution.logits.argmax(-1)[..., None, None]
-        index = k.expand(*k.shape[:-2], 1, ACTION_DIM)
-        return (normal.loc.gather(-2, index).squeeze(-2),
-                normal.scale.gather(-2, index).squeeze(-2))
+        return normal.loc, normal.scale, dist.mixture_distribution.logits
     normal = cast(Independent, dist).base_dist
-    return normal.loc, normal.scale
+    return (normal.loc.unsqueeze(-2), normal.scale.unsqueeze(-2),
+            normal.loc.new_zeros(*normal.loc.shape[:-1], 1))
+
+
+def pick_component(loc: Tensor, scale: Tensor, logits: Tensor, u: Tensor | None = None
+                   ) -> tuple[Tensor, Tensor]:
+    """Mean and std ``(..., 2)`` of one component of :func:`action_components`' output.
+
+    ``u`` ``(...)`` uniform in [0, 1) picks component k with its weight's probability
+    (inverse CDF: a sample of the mixture is then ``mean + std · ε``); without it, the most
+    probable component.
+    """
+    if u is None:
+        k = logits.argmax(-1)
+    else:
+        below = torch.softmax(logits, -1).cumsum(-1) <= u.unsqueeze(-1)
+        k = below.sum(-1).clamp(max=logits.shape[-1] - 1)
+    index = k[..., None, None].expand(*k.shape, 1, ACTION_DIM)
+    return loc.gather(-2, index).squeeze(-2), scale.gather(-2, index).squeeze(-2)
 
 
 def action_mean(dist: Distribution) -> Tensor:
     """The deterministic action: the Gaussian's mean, or the most probable component's."""
-    return _top_normal(dist)[0]
-
-
-def action_scale(dist: Distribution) -> Tensor:
-    """The standard deviation of :func:`action_mean`'s component ``(..., 2)``."""
-    return _top_normal(dist)[1]
+    return pick_component(*action_components(dist))[0]
 
 
 def gru_step(cell: nn.GRUCell, gates_in: Tensor, h: Tensor) -> Tensor:

@@ -31,7 +31,7 @@ from collavn.errors import CheckpointError, ConfigError
 from collavn.files import atomic_write, sha256_hex
 from collavn.models.communication import Message, communication_counts
 from collavn.models.config import ModelConfig, ReadoutConfig
-from collavn.models.policy import ActorCritic, action_mean, action_scale
+from collavn.models.policy import ActorCritic, action_components, pick_component
 from collavn.models.state import AgentState
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
 from collavn.policies.base import CommStats, EpisodeRandom
@@ -215,12 +215,14 @@ class CheckpointPolicy:
         """Actions ``(E, N, 2)`` (the mean, or a sample if ``stochastic``), next state.
 
         Samples are ``mean + std · ε`` with ``ε`` drawn per episode
-        (:class:`~collavn.policies.base.EpisodeRandom`); torch's random state is not
-        used.
+        (:class:`~collavn.policies.base.EpisodeRandom`), of a mixture's component picked
+        by a uniform draw from the same generator (none for one Gaussian); torch's random
+        state is not used.
         """
         device = self.model.device
         obs_t, start = obs_to_torch(obs, self.keys, device), episode_start(obs, device)
-        means, scales, states = [], [], []
+        parts: list[tuple[torch.Tensor, ...]] = []
+        states = []
         with torch.no_grad():
             size = self.block_envs
             for lo in range(0, start.shape[0], size):  # see the class docstring
@@ -231,16 +233,19 @@ class CheckpointPolicy:
                 part = state.select_envs(real)
                 step = self.model(block, AgentState.cat([part] + [part.select_envs(
                     slice(0, 1))] * (size - k)), _padded(start[real], size))
-                means.append(action_mean(step.dist)[:k])
-                scales.append(action_scale(step.dist)[:k])
+                parts.append(tuple(x[:k] for x in action_components(step.dist)))
                 states.append(step.state.select_envs(slice(0, k)))
                 self.comm.add(tally(step.message, block["active"]))
-        raw = torch.cat(means)
+        loc, scale, logits = (torch.cat(x) for x in zip(*parts, strict=True))
+        n = obs["active"].shape[1]
+        u = (torch.as_tensor(self.random.uniform(obs, 0.0, 1.0, (n,)), dtype=loc.dtype,
+                             device=device)
+             if self.stochastic and logits.shape[-1] > 1 else None)
+        raw, std = pick_component(loc, scale, logits, u)
         if self.stochastic:
-            n = obs["active"].shape[1]
             eps = torch.as_tensor(self.random.normal(obs, (n, raw.shape[-1])),
                                   dtype=raw.dtype, device=device)
-            raw = raw + torch.cat(scales) * eps
+            raw = raw + std * eps
         return raw.clamp(-1.0, 1.0).cpu().numpy().astype(np.float64), AgentState.cat(states)
 
     def communication(self) -> CommStats:
