@@ -115,9 +115,10 @@ class Pretrainer:
             hits = pair_hits(pred, target)
             for band, counts in bands.items():
                 mask = target["reachable"] & torch.as_tensor(in_bin(batch["distance"], band))
+                n = int(mask.sum())
                 for k, c in counts.items():
                     c[0] += int(hits[k][mask].sum())
-                    c[1] += int(mask.sum())
+                    c[1] += n
         return {"val/loss": float(np.mean(loss)),
                 **{f"val/{k}_accuracy": float(np.nanmean(v)) for k, v in right.items()},
                 **{f"val/{k}_accuracy_{band}": hit / n for band, counts in bands.items()
