@@ -44,11 +44,13 @@ value υ̂ (``value_dim``) over every link on which it was selected.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+from torch.autograd.function import once_differentiable
 
 from collavn.models.config import CommConfig
 
@@ -139,17 +141,145 @@ def communication_counts(message: Message, active: Tensor) -> CommCounts:
     return CommCounts(received, when, message.bytes_sent * active)
 
 
+@dataclass(frozen=True)
+class Entries:
+    """The entries each of ``T`` steps matches, as rows of one table.
+
+    Entry ``l`` of agent ``m`` at step ``t`` is ``table[e, m, index[t, e, m, l]]``. A
+    replay of ``T`` steps matches each against its whole memory: as one dense tensor that
+    is ``T·L`` copies of the table's rows, and its gradient as many again (at the ``cpu``
+    preset 5 million floats per PPO mini-batch, most of the update's communication
+    cost). :func:`entry_dot` and :func:`entry_sum` gather the rows in their forward pass
+    only — with the arithmetic of a dense tensor, so a step gives the same bits at
+    collection and in a replay — and run their backward pass over the table's ``R`` rows.
+
+    Attributes:
+        table: ``(E, M, R, d)``.
+        index: ``(T, E, M, L)`` int64 rows of ``table``.
+        rows: ``None``, or :meth:`dense` computed once (:meth:`gathered`) for several
+            forward passes to share; it carries no gradient, the table does.
+    """
+
+    table: Tensor
+    index: Tensor
+    rows: Tensor | None = None
+
+    @classmethod
+    def of(cls, dense: Tensor) -> Entries:
+        """One step whose entries are ``dense`` ``(E, M, L, d)`` itself."""
+        e, m, length = dense.shape[:3]
+        index = torch.arange(length, device=dense.device).expand(1, e, m, length)
+        return cls(dense, index)
+
+    def dense(self) -> Tensor:
+        """Every step's entries, ``(T, E, M, L, d)`` (a copy)."""
+        return _gather_rows(self.table, self.index)
+
+    def gathered(self) -> Entries:
+        """The same entries with :attr:`rows` filled in."""
+        with torch.no_grad():
+            return replace(self, rows=self.dense())
+
+    def step(self, t: int) -> Tensor:
+        """Step ``t``'s entries ``(E, M, L, d)``."""
+        return _gather_rows(self.table, self.index[t:t + 1 or None])[0]
+
+
+def _gather_rows(table: Tensor, index: Tensor) -> Tensor:
+    """``(E, M, R, d)`` table, ``(T, E, M, L)`` rows → ``(T, E, M, L, d)``."""
+    t, e, m, length = index.shape
+    rows, d = table.shape[2:]
+    base = torch.arange(e * m, device=table.device).view(1, e, m, 1) * rows
+    flat = table.reshape(e * m * rows, d).index_select(0, (index + base).flatten())
+    return flat.view(t, e, m, length, d)
+
+
+def _scatter_rows(x: Tensor, index: Tensor, rows: int) -> Tensor:
+    """``(T, E, N, M, L)`` per entry → ``(T, E, N, M, R)`` per table row (summed)."""
+    out = x.new_zeros(*x.shape[:-1], rows)
+    return out.scatter_add_(-1, index.unsqueeze(2).expand_as(x), x)
+
+
+class _EntryDot(torch.autograd.Function):
+    """``z[t, e, n, m, l] = query[t, e, n] · table[e, m, index[t, e, m, l]]``."""
+
+    @staticmethod
+    def forward(ctx: Any, query: Tensor, table: Tensor, index: Tensor,
+                rows: Tensor | None) -> Tensor:
+        ctx.save_for_backward(query, table, index)
+        t, e = query.shape[:2]
+        rows = _gather_rows(table, index) if rows is None else rows
+        z = torch.einsum("end,emld->enml", query.flatten(0, 1), rows.flatten(0, 1))
+        return z.unflatten(0, (t, e))
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, Tensor | None, None, None]:
+        query, table, index = ctx.saved_tensors
+        rows = _scatter_rows(grad, index, table.shape[2])
+        grad_query = (torch.einsum("tenmr,emrd->tend", rows, table)
+                      if ctx.needs_input_grad[0] else None)
+        grad_table = (torch.einsum("tenmr,tend->emrd", rows, query)
+                      if ctx.needs_input_grad[1] else None)
+        return grad_query, grad_table, None, None
+
+
+class _EntrySum(torch.autograd.Function):
+    """``out[t, e, n, m] = Σ_l weight[t, e, n, m, l] · table[e, m, index[t, e, m, l]]``."""
+
+    @staticmethod
+    def forward(ctx: Any, weight: Tensor, table: Tensor, index: Tensor,
+                rows: Tensor | None) -> Tensor:
+        ctx.save_for_backward(weight, table, index)
+        t, e = weight.shape[:2]
+        rows = _gather_rows(table, index) if rows is None else rows
+        out = torch.einsum("enml,emld->enmd", weight.flatten(0, 1), rows.flatten(0, 1))
+        return out.unflatten(0, (t, e))
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, Tensor | None, None, None]:
+        weight, table, index = ctx.saved_tensors
+        grad_weight = grad_table = None
+        if ctx.needs_input_grad[0]:
+            per_row = torch.einsum("tenmd,emrd->tenmr", grad, table)
+            grad_weight = per_row.gather(-1, index.unsqueeze(2).expand_as(weight))
+        if ctx.needs_input_grad[1]:
+            rows = _scatter_rows(weight, index, table.shape[2])
+            grad_table = torch.einsum("tenmr,tenmd->emrd", rows, grad)
+        return grad_weight, grad_table, None, None
+
+
+def entry_dot(query: Tensor, entries: Entries) -> Tensor:
+    """``(T, E, N, d)`` queries · every entry → ``(T, E, N, M, L)`` (see :class:`Entries`)."""
+    return cast(Tensor, _EntryDot.apply(query, entries.table, entries.index,
+                                          entries.rows))
+
+
+def entry_sum(weight: Tensor, entries: Entries) -> Tensor:
+    """``(T, E, N, M, L)`` weights → ``(T, E, N, M, d)`` weighted sums of the entries."""
+    return cast(Tensor, _EntrySum.apply(weight, entries.table, entries.index,
+                                          entries.rows))
+
+
 def memory_mask(count: Tensor, slots: int) -> Tensor:
     """``(E, N)`` writes so far → ``(E, N, slots)`` bool, slot holds an entry."""
     idx = torch.arange(slots, device=count.device)
     return idx < count.clamp(max=slots).unsqueeze(-1)
 
 
-def pooled_past_values(values: Tensor, mask: Tensor) -> Tensor:
-    """Masked mean over slots: ``(E, N, T, dv)``, ``(E, N, T)`` → ``(E, N, dv)``."""
-    w = mask.to(values.dtype)
-    total = (w.unsqueeze(-2) @ values).squeeze(-2)  # a batched (1 × T) @ (T × dv)
-    return total / w.sum(dim=2, keepdim=True).clamp(min=1.0)
+def pooled_past_values(values: Tensor | Entries, mask: Tensor) -> Tensor:
+    """Masked mean over entries.
+
+    Dense ``(E, N, L, dv)`` values and an ``(E, N, L)`` mask give ``(E, N, dv)``;
+    :class:`Entries` of ``T`` steps and a ``(T, E, N, L)`` mask give ``(T, E, N, dv)``.
+    """
+    entries = values if isinstance(values, Entries) else Entries.of(values)
+    steps = mask if isinstance(values, Entries) else mask.unsqueeze(0)
+    w = steps.to(entries.table.dtype)
+    total = entry_sum(w.unsqueeze(2), entries)[:, :, 0]  # (T, E, N, dv)
+    pooled = total / w.sum(dim=-1, keepdim=True).clamp(min=1.0)
+    return pooled if isinstance(values, Entries) else pooled[0]
 
 
 def selection_threshold(active: Tensor, cfg: CommConfig) -> Tensor:
@@ -171,33 +301,36 @@ def straight_through_gate(scores: Tensor, eta: Tensor, temperature: float) -> Te
     return (scores > eta).to(scores.dtype) + (soft - soft.detach())
 
 
-def match_scores(query_psi: Tensor, bias: Tensor, keys: Tensor, values: Tensor,
+def match_scores(query_psi: Tensor, bias: Tensor, keys: Entries, values: Entries,
                  entry_mask: Tensor, pair_active: Tensor) -> tuple[Tensor, Tensor]:
     """ψ over every (requester, entry) pair, averaged over each agent's entries.
 
     Args:
-        query_psi: ``(E, N, dk)`` queries with ψ's matrix applied (Wᵀμ).
-        bias: ``(E, N)`` ψ's bias b (of the requester's weights).
-        keys: ``(E, N, L, dk)`` entries of each agent (memory + current).
-        values: ``(E, N, L, dv)``.
-        entry_mask: ``(E, N, L)`` bool, entry present.
-        pair_active: ``(E, N, N)`` bool, requester and supporter both active.
+        query_psi: ``(T, E, N, dk)`` queries with ψ's matrix applied (Wᵀμ).
+        bias: ``(T, E, N)`` ψ's bias b (of the requester's weights).
+        keys: :class:`Entries` of ``T`` steps, ``L`` keys of each agent (memory + current).
+        values: :class:`Entries` of the same rows, ``dv`` wide.
+        entry_mask: ``(T, E, N, L)`` bool, entry present.
+        pair_active: ``(T, E, N, N)`` bool, requester and supporter both active.
 
     Returns:
-        s ``(E, N, N)`` = mean_{t'} ψ and υ̂ ``(E, N, N, dv)`` = mean_{t'} ψ·υ.
+        s ``(T, E, N, N)`` = mean_{t'} ψ and υ̂ ``(T, E, N, N, dv)`` = mean_{t'} ψ·υ.
     """
-    z = torch.einsum("end,emld->enml", query_psi, keys) / math.sqrt(keys.shape[-1])
-    psi = torch.sigmoid(z + bias[:, :, None, None])
-    weight = psi * entry_mask.unsqueeze(1).to(psi.dtype)  # (E, N, M, L)
-    n_entries = entry_mask.sum(dim=-1).clamp(min=1).to(psi.dtype).unsqueeze(1)  # (E, 1, M)
+    z = entry_dot(query_psi, keys) / math.sqrt(keys.table.shape[-1])  # (T, E, N, M, L)
+    psi = torch.sigmoid(z + bias[..., None, None])
+    weight = psi * entry_mask.unsqueeze(2).to(psi.dtype)
+    n_entries = entry_mask.sum(dim=-1).clamp(min=1).to(psi.dtype).unsqueeze(2)  # (T, E, 1, M)
     weight = weight / n_entries.unsqueeze(-1) * pair_active.unsqueeze(-1).to(psi.dtype)
-    return weight.sum(dim=-1), torch.einsum("enml,emld->enmd", weight, values)
+    return weight.sum(dim=-1), entry_sum(weight, values)
 
 
-def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor, values: Tensor,
-                     entry_mask: Tensor, active: Tensor, cfg: CommConfig,
-                     teammates: bool = True) -> Message:
+def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor | Entries,
+                     values: Tensor | Entries, entry_mask: Tensor, active: Tensor,
+                     cfg: CommConfig, teammates: bool = True) -> Message:
     """Match every requester against every active agent's entries and form ω.
+
+    One step from dense entries, or ``T`` steps at once from :class:`Entries` (then
+    every other argument, and every field of the message, has a leading ``T`` axis).
 
     Args:
         query_psi: ``(E, N, dk)`` queries with ψ's matrix applied (Wᵀμ).
@@ -211,11 +344,19 @@ def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor, values: Tens
             agent matches only its own memory, η and its own gate stay as they are, and
             nothing is sent or received.
     """
-    eye = torch.eye(keys.shape[1], dtype=torch.bool, device=keys.device)
-    pair_active = active.unsqueeze(2) & active.unsqueeze(1)
+    if not isinstance(keys, Entries) or not isinstance(values, Entries):
+        one = match_and_select(query_psi[None], bias[None], _as_entries(keys),
+                               _as_entries(values), entry_mask[None], active[None], cfg,
+                               teammates)
+        return Message(*(f[0] for f in _message_fields(one)))
+    steps, e, n = active.shape
+    eye = torch.eye(n, dtype=torch.bool, device=active.device)
+    pair_active = active.unsqueeze(3) & active.unsqueeze(2)
     if not teammates:
         pair_active = pair_active & eye
     scores, v_hat = match_scores(query_psi, bias, keys, values, entry_mask, pair_active)
+    scores, v_hat = scores.flatten(0, 1), v_hat.flatten(0, 1)
+    active, pair_active = active.flatten(0, 1), pair_active.flatten(0, 1)
     eta = selection_threshold(active, cfg).to(scores.dtype).view(-1, 1, 1)
     opened = straight_through_gate(scores, eta, cfg.temperature)
     self_gate = torch.diagonal(opened, dim1=1, dim2=2)  # o_n: the *when* decision
@@ -228,7 +369,18 @@ def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor, values: Tens
     links = above & self_open.unsqueeze(-1) & ~eye
     sent = (_bytes_sent(links, self_open, active, cfg) if teammates
             else torch.zeros(active.shape, device=active.device))
-    return Message(omega, scores, gates, self_open, links, sent)
+    fields = (omega, scores, gates, self_open, links, sent)
+    return Message(*(f.unflatten(0, (steps, e)) for f in fields))
+
+
+def _as_entries(x: Tensor | Entries) -> Entries:
+    """Dense ``(E, N, L, d)`` entries as one step's :class:`Entries`."""
+    return x if isinstance(x, Entries) else Entries.of(x)
+
+
+def _message_fields(message: Message) -> tuple[Tensor, ...]:
+    """A message's fields in order (``dataclasses.astuple`` would deep-copy tensors)."""
+    return tuple(getattr(message, f.name) for f in fields(message))
 
 
 def _bytes_sent(links: Tensor, self_open: Tensor, active: Tensor, cfg: CommConfig) -> Tensor:
@@ -279,23 +431,19 @@ class MemoryPlan:
         own = self.index.shape[3] + torch.arange(t_len, device=self.index.device)
         return self.index == own.view(t_len, 1, 1, 1)
 
-    def gather(self, before: Tensor, entries: Tensor) -> Tensor:
+    def entries(self, before: Tensor, new: Tensor) -> Entries:
         """What each step matches: its memory after the write, then its own entry.
 
-        ``(E, N, S, d)`` memory before, ``(T, E, N, d)`` entries → ``(T, E, N, S + 1, d)``
-        (slot ``S`` holds step t's own entry, stored or not). One row gather, no copies
-        of whole memories per step.
+        ``(E, N, S, d)`` memory before, ``(T, E, N, d)`` new entries → :class:`Entries`
+        with ``L = S + 1`` (entry ``S`` is step t's own, stored or not) over the table
+        ``[memory before | new entries | a zero row]``: no copies of whole memories per
+        step.
         """
         t, e, n, s = self.index.shape
-        d = entries.shape[-1]
-        table = torch.cat([before, entries.permute(1, 2, 0, 3), entries.new_zeros(e, n, 1, d)],
+        table = torch.cat([before, new.permute(1, 2, 0, 3), new.new_zeros(e, n, 1, new.shape[-1])],
                           dim=2)  # (E, N, S + T + 1, d)
-        rows = table.shape[2]
         own = (s + torch.arange(t, device=table.device)).view(t, 1, 1, 1).expand(t, e, n, 1)
-        base = torch.arange(e * n, device=table.device).view(1, e, n, 1) * rows
-        index = torch.cat([self.index, own], dim=3) + base
-        return table.reshape(e * n * rows, d).index_select(0, index.flatten()).view(
-            t, e, n, s + 1, d)
+        return Entries(table, torch.cat([self.index, own], dim=3))
 
 
 def plan_memory(count: Tensor, steps: Tensor, starts: Tensor, active: Tensor, slots: int,

@@ -561,27 +561,24 @@ class ActorCritic(nn.Module):
         else:
             x = torch.cat([o, s], dim=-1)
             key, value = self._over_steps(lambda t, x_: t.comm.key_value(x_), x)
-            # (T, E, N, S + 1, d): the memory after each step's write, then its own entry
-            keys = plan.gather(state.mem_keys, key)
-            values = plan.gather(state.mem_values, value)
-            slots = keys.shape[3] - 1
+            # every step's memory after its write, then its own entry: L = S + 1 rows
+            keys = plan.entries(state.mem_keys, key)
+            values = plan.entries(state.mem_values, value).gathered()  # read twice
+            slots = keys.index.shape[3] - 1
             stored = memory_mask(plan.count, slots)
             own = torch.zeros_like(plan.write).unsqueeze(-1)  # (T, E, N, 1) bool
-            past = torch.cat([stored & ~plan.slot, own], dim=3)
-            pooled = pooled_past_values(values.flatten(0, 1), past.flatten(0, 1))
+            pooled = pooled_past_values(values, torch.cat([stored & ~plan.slot, own], dim=3))
             query, bias = self._over_steps(lambda t, x_, p_: t.comm.query_psi(x_, p_), x,
-                                           pooled.reshape(steps, e, *pooled.shape[1:]))
+                                           pooled)
             matched = torch.cat([stored, ~plan.write.unsqueeze(-1)], dim=3)
-            msg = match_and_select(query.flatten(0, 1), bias.flatten(0, 1),
-                                   keys.flatten(0, 1), values.flatten(0, 1),
-                                   matched.flatten(0, 1), active.flatten(0, 1), cfg,
+            msg = match_and_select(query, bias, keys, values, matched, active, cfg,
                                    teammates=self.listen)
-            parts = [f.reshape(steps, e, *f.shape[1:]).unbind(0) for f in (
-                msg.omega, msg.scores, msg.gates, msg.self_open, msg.links, msg.bytes_sent)]
+            parts = [f.unbind(0) for f in (msg.omega, msg.scores, msg.gates, msg.self_open,
+                                           msg.links, msg.bytes_sent)]
             messages = [Message(*fields) for fields in zip(*parts, strict=True)]
-            omega = msg.omega.reshape(steps, e, n, -1)
-            state = replace(state, mem_keys=keys[-1, :, :, :slots],
-                            mem_values=values[-1, :, :, :slots])
+            omega = msg.omega
+            state = replace(state, mem_keys=keys.step(-1)[:, :, :slots],
+                            mem_values=values.step(-1)[:, :, :slots])
         return messages, omega, replace(state, mem_count=plan.count[-1], steps=plan.steps)
 
     def _dispatch(self, fn: Callable[..., tuple[Tensor, ...]],
