@@ -555,3 +555,6 @@ def test_entries_gradients_match_a_dense_gather():
     grads = torch.autograd.grad(want, (query, weight, table))
     for a, b in zip(torch.autograd.grad(got, (query, weight, table)), grads, strict=True):
         torch.testing.assert_close(a, b)
+    with pytest.raises(TypeError, match="must both be dense tensors or both Entries"):
+        match_and_select(query[0], torch.zeros(e, m), entries, dense[0], torch.ones(
+            e, m, length, dtype=torch.bool), torch.ones(e, m, dtype=torch.bool), CFG)

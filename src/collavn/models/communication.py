@@ -194,6 +194,18 @@ def _gather_rows(table: Tensor, index: Tensor) -> Tensor:
     return flat.view(t, e, m, length, d)
 
 
+def _einsum_rows(spec: str, x: Tensor, table: Tensor, index: Tensor,
+                 rows: Tensor | None) -> Tensor:
+    """``einsum(spec)`` of ``(T, E, ...)`` ``x`` and the gathered rows, as ``T·E`` envs.
+
+    The forward pass of :func:`entry_dot` and :func:`entry_sum`: one batch of ``T·E``
+    envs, the arithmetic of one step at collection (``rows``: already gathered).
+    """
+    rows = _gather_rows(table, index) if rows is None else rows
+    out = torch.einsum(spec, x.flatten(0, 1), rows.flatten(0, 1))
+    return out.unflatten(0, x.shape[:2])
+
+
 def _scatter_rows(x: Tensor, index: Tensor, rows: int) -> Tensor:
     """``(T, E, N, M, L)`` per entry → ``(T, E, N, M, R)`` per table row (summed)."""
     out = x.new_zeros(*x.shape[:-1], rows)
@@ -207,10 +219,7 @@ class _EntryDot(torch.autograd.Function):
     def forward(ctx: Any, query: Tensor, table: Tensor, index: Tensor,
                 rows: Tensor | None) -> Tensor:
         ctx.save_for_backward(query, table, index)
-        t, e = query.shape[:2]
-        rows = _gather_rows(table, index) if rows is None else rows
-        z = torch.einsum("end,emld->enml", query.flatten(0, 1), rows.flatten(0, 1))
-        return z.unflatten(0, (t, e))
+        return _einsum_rows("end,emld->enml", query, table, index, rows)
 
     @staticmethod
     @once_differentiable
@@ -231,10 +240,7 @@ class _EntrySum(torch.autograd.Function):
     def forward(ctx: Any, weight: Tensor, table: Tensor, index: Tensor,
                 rows: Tensor | None) -> Tensor:
         ctx.save_for_backward(weight, table, index)
-        t, e = weight.shape[:2]
-        rows = _gather_rows(table, index) if rows is None else rows
-        out = torch.einsum("enml,emld->enmd", weight.flatten(0, 1), rows.flatten(0, 1))
-        return out.unflatten(0, (t, e))
+        return _einsum_rows("enml,emld->enmd", weight, table, index, rows)
 
     @staticmethod
     @once_differentiable
@@ -274,12 +280,11 @@ def pooled_past_values(values: Tensor | Entries, mask: Tensor) -> Tensor:
     Dense ``(E, N, L, dv)`` values and an ``(E, N, L)`` mask give ``(E, N, dv)``;
     :class:`Entries` of ``T`` steps and a ``(T, E, N, L)`` mask give ``(T, E, N, dv)``.
     """
-    entries = values if isinstance(values, Entries) else Entries.of(values)
-    steps = mask if isinstance(values, Entries) else mask.unsqueeze(0)
-    w = steps.to(entries.table.dtype)
-    total = entry_sum(w.unsqueeze(2), entries)[:, :, 0]  # (T, E, N, dv)
-    pooled = total / w.sum(dim=-1, keepdim=True).clamp(min=1.0)
-    return pooled if isinstance(values, Entries) else pooled[0]
+    if not isinstance(values, Entries):
+        return pooled_past_values(Entries.of(values), mask[None])[0]
+    w = mask.to(values.table.dtype)
+    total = entry_sum(w.unsqueeze(2), values)[:, :, 0]  # (T, E, N, dv)
+    return total / w.sum(dim=-1, keepdim=True).clamp(min=1.0)
 
 
 def selection_threshold(active: Tensor, cfg: CommConfig) -> Tensor:
@@ -344,11 +349,13 @@ def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor | Entries,
             agent matches only its own memory, η and its own gate stay as they are, and
             nothing is sent or received.
     """
-    if not isinstance(keys, Entries) or not isinstance(values, Entries):
-        one = match_and_select(query_psi[None], bias[None], _as_entries(keys),
-                               _as_entries(values), entry_mask[None], active[None], cfg,
+    if isinstance(keys, Tensor) and isinstance(values, Tensor):
+        one = match_and_select(query_psi[None], bias[None], Entries.of(keys),
+                               Entries.of(values), entry_mask[None], active[None], cfg,
                                teammates)
         return Message(*(f[0] for f in _message_fields(one)))
+    if not isinstance(keys, Entries) or not isinstance(values, Entries):
+        raise TypeError("keys and values must both be dense tensors or both Entries")
     steps, e, n = active.shape
     eye = torch.eye(n, dtype=torch.bool, device=active.device)
     pair_active = active.unsqueeze(3) & active.unsqueeze(2)
@@ -371,11 +378,6 @@ def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor | Entries,
             else torch.zeros(active.shape, device=active.device))
     fields = (omega, scores, gates, self_open, links, sent)
     return Message(*(f.unflatten(0, (steps, e)) for f in fields))
-
-
-def _as_entries(x: Tensor | Entries) -> Entries:
-    """Dense ``(E, N, L, d)`` entries as one step's :class:`Entries`."""
-    return x if isinstance(x, Entries) else Entries.of(x)
 
 
 def _message_fields(message: Message) -> tuple[Tensor, ...]:
