@@ -4,6 +4,7 @@ set, and a training run's encoder is frozen, stored per step and size-checked.""
 from __future__ import annotations
 
 import dataclasses
+import signal
 
 import numpy as np
 import pytest
@@ -297,3 +298,36 @@ def test_free_space_is_a_policy_input_stored_with_the_rollout(tmp_path):
                                         "model": run.model.state_dict()})
     _, overrides = load_policy(tmp_path / "c.pt")
     assert overrides["free_space"] == 8  # evaluation renders what the policy reads
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_ends_pretraining_with_the_encoder_written(tmp_path, monkeypatch, sig):
+    """A killed pretraining run keeps its steps: the signal ends the loop after the step
+    in progress, the held-out frames are scored and ``encoder.pt`` is written."""
+    import collavn.perception.pretrain as pretrain_module
+
+    torch.set_num_threads(1)
+    cfg = tiny_config("no-com")
+    p = PerceptionConfig(frames_per_scene=8, goals_per_scene=2, val_frames_per_scene=4,
+                         bins=8, batch_size=8, hidden=32, steps=50)
+    pcfg = PretrainConfig(env=cfg.env, model=cfg.model, perception=p, progress=False,
+                          out=str(tmp_path / "enc"), scenes=("procedural:0",),
+                          val_scenes=("procedural:1",), eval_interval=1000)
+    step = pretrain_module.Pretrainer.step
+    calls = []
+
+    def step_then_signal(self):
+        calls.append(1)
+        if len(calls) == 3:
+            signal.raise_signal(sig)
+        return step(self)
+
+    monkeypatch.setattr(pretrain_module.Pretrainer, "step", step_then_signal)
+    before = signal.getsignal(sig)
+    result = pretrain_module.pretrain(pcfg)
+    assert (result.signal, result.steps, len(calls)) == (sig, 3, 3)
+    assert "val/path_bearing_accuracy" in result.metrics  # scored before saving
+    encoder = load_encoder(result.path)
+    assert encoder.metrics == result.metrics
+    assert torch.load(result.path, weights_only=False)["steps"] == 3
+    assert signal.getsignal(sig) is before  # the run's handler is gone again

@@ -41,7 +41,11 @@ def parse(args: Sequence[str], prog: str = "collavn pretrain") -> PretrainConfig
 
 
 def main(args: Sequence[str], prog: str = "collavn pretrain") -> int:
-    """Parse, pretrain, print the held-out accuracies and where the encoder went."""
+    """Parse, pretrain, print the held-out accuracies and where the encoder went.
+
+    SIGINT or SIGTERM ends the run after the current step with the encoder written
+    (exit ``128 + signal``); a second signal stops at once without writing.
+    """
     config = parse(args, prog)
     from collavn.perception.pretrain import pretrain
 
@@ -59,4 +63,8 @@ def main(args: Sequence[str], prog: str = "collavn pretrain") -> int:
                  for k, v in result.metrics.items() if band(k) == b]
         if parts:
             print(f"  goal at {b} distances: {', '.join(parts)}")
-    return 0
+    if result.signal is None:
+        return 0
+    print(f"stopped early by signal {result.signal} after {result.steps} steps; the "
+          f"encoder above holds them")
+    return 128 + result.signal

@@ -36,6 +36,7 @@ from collavn.perception.heads import LABELS, accuracies, losses, pair_hits, targ
 from collavn.scenes import load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.threads import apply_threads
+from collavn.training.interrupt import StopRequest
 
 ENCODER_FILE = "encoder.pt"
 #: The labels of a (panorama, goal) pair, scored per episode difficulty too.
@@ -49,6 +50,8 @@ class PretrainResult:
     steps: int
     metrics: dict[str, float]
     path: Path
+    signal: int | None = None
+    """The signal that stopped the run early (it still saved), else ``None``."""
 
 
 class Pretrainer:
@@ -159,7 +162,10 @@ def pretrain(cfg: PretrainConfig) -> PretrainResult:
     (out / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
     writer = SummaryWriter(str(out))
     budget = 60.0 * cfg.time_budget_minutes
-    with Progress(disable=not cfg.progress) as progress:
+    notice = (f"finishing the current step, then scoring the held-out frames and writing "
+              f"{out / ENCODER_FILE}")
+    with (StopRequest(out / ENCODER_FILE, 1, notice) as stop,
+          Progress(disable=not cfg.progress) as progress):
         train, val = load_frames(cfg, progress)
         trainer = Pretrainer(cfg, train, val)
         task = progress.add_task("pretraining", total=cfg.perception.steps)
@@ -168,7 +174,7 @@ def pretrain(cfg: PretrainConfig) -> PretrainResult:
         while step < cfg.perception.steps:
             scalars = trainer.step()
             step += 1
-            over = budget > 0 and time.perf_counter() - started >= budget
+            over = (budget > 0 and time.perf_counter() - started >= budget) or stop.requested
             if step % cfg.eval_interval == 0 or step == cfg.perception.steps or over:
                 metrics = trainer.evaluate()
                 scalars.update(metrics)
@@ -181,8 +187,8 @@ def pretrain(cfg: PretrainConfig) -> PretrainResult:
                    else "")))
             if over:
                 break
-    writer.close()
-    path = save_encoder(out / ENCODER_FILE, trainer.frames,
-                        encoder_spec(cfg.model, cfg.env.camera_height), metrics,
-                        cfg.to_dict(), step)
-    return PretrainResult(step, metrics, path)
+        writer.close()
+        path = save_encoder(out / ENCODER_FILE, trainer.frames,
+                            encoder_spec(cfg.model, cfg.env.camera_height), metrics,
+                            cfg.to_dict(), step)
+    return PretrainResult(step, metrics, path, stop.signum)

@@ -28,12 +28,21 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 class StopRequest:
     """Signal handlers for the duration of a ``with`` block (main thread only).
 
+    Args:
+        checkpoint: The file a second signal leaves as it was (named in its message).
+        interval: Updates until the next sync point (named in the first signal's notice).
+        notice: What the run does after the first signal, if not the trainer's
+            "finish the update, checkpoint at the next sync point".
+
     Attributes:
         signum: The first signal received, or ``None``.
     """
 
-    def __init__(self, checkpoint: Path, interval: int) -> None:
+    def __init__(self, checkpoint: Path, interval: int, notice: str | None = None) -> None:
         self.checkpoint, self.interval = checkpoint, interval
+        self.notice = notice or (f"finishing the current update, then stopping with a "
+                                 f"checkpoint at the next sync point (within {interval} "
+                                 f"updates)")
         self.signum: int | None = None
         self._previous: dict[int, Any] = {}
 
@@ -60,6 +69,5 @@ class StopRequest:
             raise Interrupted(signum, f"second {name}: stopped at once without saving; the "
                               f"last checkpoint ({self.checkpoint}) is as it was")
         self.signum = signum
-        print(f"\ncollavn: {name}: finishing the current update, then stopping with a "
-              f"checkpoint at the next sync point (within {self.interval} updates); send "
-              f"it again to stop at once without saving", file=sys.stderr, flush=True)
+        print(f"\ncollavn: {name}: {self.notice}; send it again to stop at once without "
+              f"saving", file=sys.stderr, flush=True)
