@@ -24,7 +24,7 @@ DEFAULT_PRESET = "cpu"
 
 def pretrain_presets() -> dict[str, tuple[str, PretrainConfig]]:
     """``name → (description, config)`` from the train presets' env and model."""
-    paper = PerceptionConfig(frames_per_scene=64, goals_per_scene=8,
+    paper = PerceptionConfig(train_scenes=25, frames_per_scene=64, goals_per_scene=8,
                              val_frames_per_scene=32, batch_size=32, lr=3e-4)
     sizes = {"cpu": PerceptionConfig(), "paper": paper}
     return {name: (f"{doc} Pretraining its frame perception.",

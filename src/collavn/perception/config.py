@@ -25,10 +25,16 @@ from collavn.models.config import ModelConfig
 class PerceptionConfig:
     """Frames, labels and optimisation of the pretraining."""
 
+    train_scenes: int = 100
+    """Procedural training scenes (seeds 0 … train_scenes − 1 of the train range) when no
+    ``--scenes`` are given. More than the 25 a policy trains in: rendering and labelling
+    100 scenes took 2.5 min of a 15-min run here (cached scenes; generating one costs
+    ~0.4 s more), and the held-out loss falls with the variety of rooms (15 min: 4.79
+    with 25 scenes × 16 goals, 4.52 with 100 × 32)."""
     frames_per_scene: int = 256
     """Panoramas rendered per training scene (the set is rendered once, then reused with
     random rotations and mirror images)."""
-    goals_per_scene: int = 16
+    goals_per_scene: int = 32
     """Goal images per scene; every panorama is labelled against every goal of its scene."""
     val_frames_per_scene: int = 64
     """Panoramas per validation scene (held-out accuracy)."""
@@ -56,9 +62,9 @@ class PerceptionConfig:
     """Also train on mirror images (panorama and goal flipped, bearings mirrored)."""
 
     def __post_init__(self) -> None:
-        if min(self.frames_per_scene, self.goals_per_scene, self.val_frames_per_scene,
-               self.bins, self.steps, self.batch_size) < 1:
-            raise ConfigError("frames, goals, bins, steps and batch size must be ≥ 1")
+        if min(self.train_scenes, self.frames_per_scene, self.goals_per_scene,
+               self.val_frames_per_scene, self.bins, self.steps, self.batch_size) < 1:
+            raise ConfigError("scenes, frames, goals, bins, steps and batch size must be ≥ 1")
         if not 0.0 <= self.own_goal_fraction <= 1.0:
             raise ConfigError(f"own_goal_fraction must be in [0, 1], got "
                               f"{self.own_goal_fraction}")
@@ -82,7 +88,8 @@ class PretrainConfig:
     seed: int = 0
     """Seeds the frames, the pairs and the initial weights."""
     scenes: tuple[str, ...] = ()
-    """Training scene specs; empty = the 25 procedural ``train`` scenes."""
+    """Training scene specs; empty = ``perception.train_scenes`` procedural ``train``
+    scenes."""
     val_scenes: tuple[str, ...] = ()
     """Held-out scene specs; empty = the 5 procedural ``val`` scenes."""
     time_budget_minutes: float = 0.0

@@ -136,7 +136,8 @@ def load_frames(cfg: PretrainConfig, progress: object) -> tuple[FrameSet, FrameS
     p = cfg.perception
     rng = np.random.default_rng(cfg.seed)
     out = []
-    for specs, count, name in ((cfg.scenes or tuple(scene_specs("train")),
+    train_specs = scene_specs("train", (p.train_scenes, 0, 0))
+    for specs, count, name in ((cfg.scenes or tuple(train_specs),
                                 p.frames_per_scene, "train"),
                                (cfg.val_scenes or tuple(scene_specs("val")),
                                 p.val_frames_per_scene, "val")):
