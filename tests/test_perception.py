@@ -301,9 +301,12 @@ def test_free_space_is_a_policy_input_stored_with_the_rollout(tmp_path):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_a_signal_ends_pretraining_with_the_encoder_written(tmp_path, monkeypatch, sig):
-    """A killed pretraining run keeps its steps: the signal ends the loop after the step
-    in progress, the held-out frames are scored and ``encoder.pt`` is written."""
+def test_a_signal_ends_pretraining_with_the_encoder_written(tmp_path, monkeypatch, capsys,
+                                                            sig):
+    """A killed ``collavn pretrain`` keeps its steps: the signal ends the loop after the
+    step in progress, the held-out frames are scored, ``encoder.pt`` is written and the
+    command exits 128 + signal."""
+    import collavn.cli.pretrain as cli_pretrain
     import collavn.perception.pretrain as pretrain_module
 
     torch.set_num_threads(1)
@@ -323,11 +326,12 @@ def test_a_signal_ends_pretraining_with_the_encoder_written(tmp_path, monkeypatc
         return step(self)
 
     monkeypatch.setattr(pretrain_module.Pretrainer, "step", step_then_signal)
+    monkeypatch.setattr(cli_pretrain, "parse", lambda args, prog: pcfg)
     before = signal.getsignal(sig)
-    result = pretrain_module.pretrain(pcfg)
-    assert (result.signal, result.steps, len(calls)) == (sig, 3, 3)
-    assert "val/path_bearing_accuracy" in result.metrics  # scored before saving
-    encoder = load_encoder(result.path)
-    assert encoder.metrics == result.metrics
-    assert torch.load(result.path, weights_only=False)["steps"] == 3
+    assert cli_pretrain.main([]) == 128 + sig
+    assert len(calls) == 3
+    assert f"stopped by {sig.name} after 3 steps" in capsys.readouterr().out
+    saved = torch.load(tmp_path / "enc" / "encoder.pt", weights_only=False)
+    assert saved["steps"] == 3
+    assert "val/path_bearing_accuracy" in load_encoder(tmp_path / "enc" / "encoder.pt").metrics
     assert signal.getsignal(sig) is before  # the run's handler is gone again

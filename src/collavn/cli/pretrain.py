@@ -13,6 +13,7 @@ The preset (default ``cpu``; ``paper`` pretrains the ResNet18 encoder at 512×12
 
 from __future__ import annotations
 
+import signal
 from collections.abc import Sequence
 
 from collavn.configs import parse_with_presets
@@ -47,9 +48,15 @@ def main(args: Sequence[str], prog: str = "collavn pretrain") -> int:
     (exit ``128 + signal``); a second signal stops at once without writing.
     """
     config = parse(args, prog)
-    from collavn.perception.pretrain import pretrain
+    from pathlib import Path
 
-    result = pretrain(config)
+    from collavn.perception.pretrain import ENCODER_FILE, pretrain
+    from collavn.training.interrupt import StopRequest
+
+    encoder = Path(config.out) / ENCODER_FILE
+    notice = f"finishing the current step, then scoring the held-out frames and writing {encoder}"
+    with StopRequest(encoder, 1, notice) as stop:
+        result = pretrain(config, lambda: stop.requested)
     from collavn.datasets.episode import DIFFICULTY_BINS
 
     def band(key: str) -> str:
@@ -63,8 +70,8 @@ def main(args: Sequence[str], prog: str = "collavn pretrain") -> int:
                  for k, v in result.metrics.items() if band(k) == b]
         if parts:
             print(f"  goal at {b} distances: {', '.join(parts)}")
-    if result.signal is None:
+    if stop.signum is None:
         return 0
-    print(f"stopped early by signal {result.signal} after {result.steps} steps; the "
-          f"encoder above holds them")
-    return 128 + result.signal
+    print(f"stopped by {signal.Signals(stop.signum).name} after {result.steps} steps; "
+          f"the encoder above holds them")
+    return 128 + stop.signum

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +37,6 @@ from collavn.perception.heads import LABELS, accuracies, losses, pair_hits, targ
 from collavn.scenes import load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.threads import apply_threads
-from collavn.training.interrupt import StopRequest
 
 ENCODER_FILE = "encoder.pt"
 #: The labels of a (panorama, goal) pair, scored per episode difficulty too.
@@ -50,8 +50,8 @@ class PretrainResult:
     steps: int
     metrics: dict[str, float]
     path: Path
-    signal: int | None = None
-    """The signal that stopped the run early (it still saved), else ``None``."""
+    stopped: bool = False
+    """``stop`` ended the run before its steps and time budget (it still saved)."""
 
 
 class Pretrainer:
@@ -151,8 +151,13 @@ def load_frames(cfg: PretrainConfig, progress: object) -> tuple[FrameSet, FrameS
     return out[0], out[1]
 
 
-def pretrain(cfg: PretrainConfig) -> PretrainResult:
-    """Pretrain the frame perception; writes ``OUT/encoder.pt``."""
+def pretrain(cfg: PretrainConfig, stop: Callable[[], bool] | None = None) -> PretrainResult:
+    """Pretrain the frame perception; writes ``OUT/encoder.pt``.
+
+    ``stop`` is asked after every step (``collavn pretrain`` passes "a SIGINT or SIGTERM
+    arrived"); once it answers true the run scores the held-out frames, writes the
+    encoder with the steps done and returns.
+    """
     from rich.progress import Progress
     from torch.utils.tensorboard import SummaryWriter
 
@@ -163,10 +168,8 @@ def pretrain(cfg: PretrainConfig) -> PretrainResult:
     (out / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
     writer = SummaryWriter(str(out))
     budget = 60.0 * cfg.time_budget_minutes
-    notice = (f"finishing the current step, then scoring the held-out frames and writing "
-              f"{out / ENCODER_FILE}")
-    with (StopRequest(out / ENCODER_FILE, 1, notice) as stop,
-          Progress(disable=not cfg.progress) as progress):
+    stopped = False
+    with Progress(disable=not cfg.progress) as progress:
         train, val = load_frames(cfg, progress)
         trainer = Pretrainer(cfg, train, val)
         task = progress.add_task("pretraining", total=cfg.perception.steps)
@@ -175,7 +178,8 @@ def pretrain(cfg: PretrainConfig) -> PretrainResult:
         while step < cfg.perception.steps:
             scalars = trainer.step()
             step += 1
-            over = (budget > 0 and time.perf_counter() - started >= budget) or stop.requested
+            stopped = stop is not None and stop()
+            over = (budget > 0 and time.perf_counter() - started >= budget) or stopped
             if step % cfg.eval_interval == 0 or step == cfg.perception.steps or over:
                 metrics = trainer.evaluate()
                 scalars.update(metrics)
@@ -188,8 +192,8 @@ def pretrain(cfg: PretrainConfig) -> PretrainResult:
                    else "")))
             if over:
                 break
-        writer.close()
-        path = save_encoder(out / ENCODER_FILE, trainer.frames,
-                            encoder_spec(cfg.model, cfg.env.camera_height), metrics,
-                            cfg.to_dict(), step)
-    return PretrainResult(step, metrics, path, stop.signum)
+    writer.close()
+    path = save_encoder(out / ENCODER_FILE, trainer.frames,
+                        encoder_spec(cfg.model, cfg.env.camera_height), metrics,
+                        cfg.to_dict(), step)
+    return PretrainResult(step, metrics, path, stopped)
