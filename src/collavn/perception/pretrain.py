@@ -50,8 +50,6 @@ class PretrainResult:
     steps: int
     metrics: dict[str, float]
     path: Path
-    stopped: bool = False
-    """``stop`` ended the run before its steps and time budget (it still saved)."""
 
 
 class Pretrainer:
@@ -168,7 +166,6 @@ def pretrain(cfg: PretrainConfig, stop: Callable[[], bool] | None = None) -> Pre
     (out / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
     writer = SummaryWriter(str(out))
     budget = 60.0 * cfg.time_budget_minutes
-    stopped = False
     with Progress(disable=not cfg.progress) as progress:
         train, val = load_frames(cfg, progress)
         trainer = Pretrainer(cfg, train, val)
@@ -178,8 +175,8 @@ def pretrain(cfg: PretrainConfig, stop: Callable[[], bool] | None = None) -> Pre
         while step < cfg.perception.steps:
             scalars = trainer.step()
             step += 1
-            stopped = stop is not None and stop()
-            over = (budget > 0 and time.perf_counter() - started >= budget) or stopped
+            over = ((budget > 0 and time.perf_counter() - started >= budget)
+                    or (stop is not None and stop()))
             if step % cfg.eval_interval == 0 or step == cfg.perception.steps or over:
                 metrics = trainer.evaluate()
                 scalars.update(metrics)
@@ -196,4 +193,4 @@ def pretrain(cfg: PretrainConfig, stop: Callable[[], bool] | None = None) -> Pre
     path = save_encoder(out / ENCODER_FILE, trainer.frames,
                         encoder_spec(cfg.model, cfg.env.camera_height), metrics,
                         cfg.to_dict(), step)
-    return PretrainResult(step, metrics, path, stopped)
+    return PretrainResult(step, metrics, path)
