@@ -37,7 +37,8 @@ class EvalConfig:
 
     policy: str = "random"
     """``random``, ``explorer`` (goal-blind: straight on, turn when blocked), ``oracle``
-    (privileged shortest-path follower), or a checkpoint file."""
+    (privileged shortest-path follower), ``seeker`` (explorer until the goal is in sight,
+    then oracle; an ``il`` expert), or a checkpoint file."""
     dataset: Path = Path("data/episodes")
     """Dataset directory (made by ``collavn dataset generate``)."""
     out: Path = Path("runs/eval")

@@ -20,13 +20,14 @@ from collavn.policies.checkpoint import (
 )
 from collavn.policies.explorer import ExplorerPolicy
 from collavn.policies.oracle import OraclePolicy
+from collavn.policies.seeker import SeekerPolicy
 from collavn.scenes.scene import Scene
 
 #: Policies named by a word (anything else is a checkpoint path).
-NAMED_POLICIES = ("random", "explorer", "oracle")
+NAMED_POLICIES = ("random", "explorer", "oracle", "seeker")
 
 __all__ = ["NAMED_POLICIES", "CheckpointPolicy", "CommStats", "ExplorerPolicy", "OraclePolicy",
-           "Policy", "RandomPolicy", "check_mute", "load_policy", "make_policy"]
+           "Policy", "RandomPolicy", "SeekerPolicy", "check_mute", "load_policy", "make_policy"]
 
 
 def check_mute(name: str) -> None:
@@ -42,7 +43,7 @@ def check_mute(name: str) -> None:
 
 def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0, device: str = "cpu",
                 stochastic: bool = False, mute: bool = False) -> tuple[Policy, dict[str, Any]]:
-    """A policy by name (``random``, ``explorer``, ``oracle``) or checkpoint path.
+    """A policy by name (``random``, ``explorer``, ``oracle``, ``seeker``) or checkpoint path.
 
     ``mute`` (checkpoints only) cuts the links between teammates: an ablation.
 
@@ -57,6 +58,8 @@ def make_policy(name: str, scenes: Sequence[Scene], seed: int = 0, device: str =
         return ExplorerPolicy(seed), {"depth": True}
     if name == "oracle":
         return OraclePolicy(scenes), {"privileged": True}
+    if name == "seeker":
+        return SeekerPolicy(list(scenes), seed=seed), {"privileged": True, "depth": True}
     if not Path(name).exists():
         raise CollavnError(f"unknown policy {name!r}: use {', '.join(NAMED_POLICIES)} or a "
                            f"checkpoint file")

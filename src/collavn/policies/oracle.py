@@ -51,16 +51,20 @@ class OraclePolicy:
         actions = np.zeros((*active.shape, 2))
         for e, n in zip(*np.nonzero(active), strict=True):
             scene = self.scenes[int(obs["scene_index"][e])]
-            field = scene.geodesic_field(goal[e, n])
-            pursuit = self.steer(pose[e, n], self._target(scene, field, pose[e, n, :2]))
-            actions[e, n] = self._safe(scene, pose[e], n, goal[e, n], pursuit)
+            actions[e, n] = self.act_one(scene, pose[e], n, goal[e, n])
         return actions, None
+
+    def act_one(self, scene: Scene, poses: np.ndarray, n: int, goal: np.ndarray) -> np.ndarray:
+        """Agent ``n``'s ``(2,)`` action among the env's ``(N, 3)`` world poses."""
+        field = scene.geodesic_field(goal)
+        pursuit = self.steer(poses[n], self._target(scene, field, poses[n, :2]))
+        return self._safe(scene, poses, n, goal, pursuit)
 
     def _target(self, scene: Scene, field: GeodesicField, position: np.ndarray) -> np.ndarray:
         path = field.path_from(position)
         ahead = np.linalg.norm(path - position, axis=1) <= self.lookahead
         for k in np.flatnonzero(ahead[1:])[::-1] + 1:  # path[0] is the agent itself
-            if _in_view(scene, position, path[k]):
+            if in_view(scene, position, path[k]):
                 return path[k]
         return path[min(1, len(path) - 1)]
 
@@ -113,7 +117,7 @@ class OraclePolicy:
         return np.array([speed * facing, turn])
 
 
-def _in_view(scene: Scene, a: np.ndarray, b: np.ndarray) -> bool:
+def in_view(scene: Scene, a: np.ndarray, b: np.ndarray) -> bool:
     """The straight segment a→b stays on navigable cells (sampled every 5 cm)."""
     k = max(2, int(np.linalg.norm(b - a) / 0.05) + 1)
     points = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)

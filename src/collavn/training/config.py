@@ -59,7 +59,7 @@ METHODS: dict[str, MethodSpec] = {
     "ours": MethodSpec("memory", False, "memory-augmented handshake communication, PPO"),
     "no-mem": MethodSpec("handshake", False, "handshake communication without memory, PPO"),
     "no-com": MethodSpec("none", False, "no communication (IPPO)"),
-    "il": MethodSpec("none", True, "imitation of the shortest-path oracle (DAgger / BC)"),
+    "il": MethodSpec("none", True, "imitation of a privileged expert (DAgger / BC)"),
 }
 
 #: Fields that steer a run without changing its results (allowed to differ on resume).
@@ -156,8 +156,16 @@ class MapTrainConfig:
 
 @dataclass(frozen=True)
 class ImitationConfig:
-    """Behaviour cloning of the shortest-path oracle (method ``il``)."""
+    """Imitation of a privileged expert, the shortest-path oracle by default (method ``il``)."""
 
+    expert: Literal["oracle", "seeker"] = "oracle"
+    """Whom ``il`` imitates: ``oracle``, the shortest path from the first step (the paper's
+    baseline); ``seeker``, the explorer's moves (deterministic) until the goal is in
+    sight, then the oracle's — every move inferable from what the agent sees (see
+    :mod:`collavn.policies.seeker`)."""
+    sight: float = 2.0
+    """``seeker`` only: the goal is in sight within this many metres along a navigable
+    straight line."""
     dagger: bool = False
     """DAgger: let the learner drive (with its mean action, the policy that is evaluated)
     with probability ``1 - β`` (else pure BC)."""
@@ -179,6 +187,9 @@ class ImitationConfig:
         for name in ("epochs", "buffer_rollouts", "num_minibatches"):
             check_count(f"--imitation.{name.replace('_', '-')}", getattr(self, name))
         check_number("--imitation.lr", self.lr)
+        check_number("--imitation.sight", self.sight)
+        if self.expert not in ("oracle", "seeker"):
+            raise ConfigError(f"--imitation.expert must be oracle or seeker, got {self.expert!r}")
         for name in ("beta_decay", "beta_min"):
             value = getattr(self, name)
             check_number(f"--imitation.{name.replace('_', '-')}", value, allow_minimum=True)

@@ -17,6 +17,13 @@ step, β decaying per update, and is still supervised by the oracle's action in 
 states it visits. The rollout stores the oracle's actions in ``Rollout.raw_actions``
 and, like PPO's, the stored percepts (a frozen encoder is never re-run by the update;
 the DAgger buffer keeps the map predictions made at collection).
+
+The expert (``--imitation.expert``) is the oracle by default, as in the paper's
+baseline. ``seeker`` instead explores like the goal-blind explorer until the goal is in
+sight and follows the oracle from then on (:mod:`collavn.policies.seeker`): a teacher
+whose every move is a function of what the learner can sense, so that where the learner
+cannot tell where the goal is, the target it averages is a deliberate search rather
+than the mean of left and right turns.
 """
 
 from __future__ import annotations
@@ -29,7 +36,9 @@ from torch import Tensor
 
 from collavn.errors import CollavnError
 from collavn.models.policy import ActorCritic
-from collavn.policies.base import Policy
+from collavn.policies.oracle import OraclePolicy
+from collavn.policies.seeker import SeekerPolicy, SeekerState
+from collavn.scenes.scene import Scene
 from collavn.training.config import ImitationConfig
 from collavn.training.ppo import masked_mean, minibatch_envs
 from collavn.training.rollout import Rollout
@@ -42,20 +51,55 @@ def expert_probability(cfg: ImitationConfig, iteration: int) -> float:
     return max(cfg.beta_min, cfg.beta_decay ** iteration)
 
 
-def expert_actions(expert: Policy, obs: dict[str, np.ndarray]) -> np.ndarray:
-    """The oracle's ``(E, N, 2)`` actions; an env where it fails gets zeros (stand still).
+class Expert:
+    """The privileged teacher of ``il`` (``--imitation.expert``) and its memory.
 
-    The oracle plans on the navigation grid; a pose it cannot plan from (e.g. pushed
-    off the grid's connected region by a collision) must not stop a training run.
+    Args:
+        cfg: Which expert, and the seeker's sight.
+        scenes: The env's scenes.
+        num_envs, num_agents: The env's shape (the seeker keeps per-agent memory).
+        seed: Seeds the seeker's tie-breaking.
     """
+
+    def __init__(self, cfg: ImitationConfig, scenes: Sequence[Scene], num_envs: int,
+                 num_agents: int, seed: int = 0) -> None:
+        self.policy: OraclePolicy | SeekerPolicy = (
+            SeekerPolicy(list(scenes), cfg.sight, seed=seed) if cfg.expert == "seeker"
+            else OraclePolicy(scenes))
+        self.state: SeekerState | None = (
+            self.policy.initial_state(num_envs, num_agents)
+            if isinstance(self.policy, SeekerPolicy) else None)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """The expert's ``(E, N, 2)`` actions; an env where the oracle fails gets zeros.
+
+        The oracle plans on the navigation grid; a pose it cannot plan from (e.g. pushed
+        off the grid's connected region by a collision) must not stop a training run.
+        (The seeker explores from such a pose instead.)
+        """
+        if isinstance(self.policy, OraclePolicy):
+            return oracle_actions(self.policy, obs)
+        assert self.state is not None
+        actions, self.state = self.policy.act(obs, self.state)
+        return actions
+
+    def executed(self, actions: np.ndarray, active: np.ndarray) -> None:
+        """Tell the expert what the env was given (DAgger: often the learner's actions)."""
+        if isinstance(self.policy, SeekerPolicy):
+            assert self.state is not None
+            self.policy.executed(self.state, actions, active)
+
+
+def oracle_actions(oracle: OraclePolicy, obs: dict[str, np.ndarray]) -> np.ndarray:
+    """The oracle's ``(E, N, 2)`` actions, zeros (stand still) for an env where it fails."""
     try:
-        return expert.act(obs, None)[0]
+        return oracle.act(obs, None)[0]
     except CollavnError:
         out = np.zeros((*obs["active"].shape, 2))
         for e in range(out.shape[0]):
             one = {k: v[e:e + 1] for k, v in obs.items()}
             try:
-                out[e] = expert.act(one, None)[0][0]
+                out[e] = oracle.act(one, None)[0][0]
             except CollavnError:
                 pass
         return out

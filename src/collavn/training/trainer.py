@@ -39,7 +39,6 @@ from collavn.files import prepare_output_dir
 from collavn.models.policy import ActorCritic, AgentTower
 from collavn.models.state import AgentState
 from collavn.perception.encoder import EncoderFile, install_encoder, load_encoder
-from collavn.policies import OraclePolicy
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
 from collavn.policies.base import CommStats
 from collavn.policies.checkpoint import load_checkpoint, save_checkpoint, tally
@@ -50,7 +49,7 @@ from collavn.training import distributed
 from collavn.training.checkpoint import check_config, differences, saved_config
 from collavn.training.config import TrainConfig
 from collavn.training.imitation import (
-    expert_actions,
+    Expert,
     expert_probability,
     imitation_update,
     mix_actions,
@@ -74,7 +73,7 @@ class Run:
     model: ActorCritic
     optimizer: torch.optim.Optimizer
     maps: MapTrainer
-    expert: OraclePolicy | None
+    expert: Expert | None
     obs: dict[str, np.ndarray] = field(default_factory=dict)
     state: AgentState | None = None
     iteration: int = 0
@@ -102,7 +101,8 @@ def env_config(cfg: TrainConfig) -> EnvConfig:
     from the model and the method, whatever ``cfg.env`` says.
     """
     m = cfg.model.map
-    return replace(cfg.env, depth=m.use_depth, free_space=cfg.model.free_space_input,
+    seeker = cfg.method_spec.imitation and cfg.imitation.expert == "seeker"
+    return replace(cfg.env, depth=m.use_depth or seeker, free_space=cfg.model.free_space_input,
                    gt_map=cfg.mapping.enabled,
                    gt_map_size=round(m.local_size * m.resolution / 0.1),
                    privileged=cfg.method_spec.imitation)
@@ -154,7 +154,8 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     optimizer = torch.optim.Adam(parameter_groups(model, cfg), lr=cfg.learning_rate, eps=1e-5)
     maps = MapTrainer(model, cfg.mapping, cfg.model.map.use_depth, info.seed(cfg.run.seed),
                       distributed.average_gradients if info.enabled else None)
-    expert = OraclePolicy(env.scenes) if cfg.method_spec.imitation else None
+    expert = (Expert(cfg.imitation, env.scenes, env.num_envs, env.num_agents, cfg.run.seed)
+              if cfg.method_spec.imitation else None)
     return Run(cfg, info, device, env, model, optimizer, maps, expert, scenes=scenes)
 
 
@@ -300,8 +301,9 @@ def sync_point(run: Run) -> None:
                           run.iteration // run.cfg.run.checkpoint_interval)
     if [s.name for s in window] != [s.name for s in run.env.scenes]:  # next scenes
         run.env = VectorEnv(window, run.cfg.run.num_envs, env_config(run.cfg), seed=seed)
-        if run.expert is not None:
-            run.expert = OraclePolicy(run.env.scenes)
+    if run.expert is not None:  # a fresh memory, as after a resume
+        run.expert = Expert(run.cfg.imitation, run.env.scenes, run.env.num_envs,
+                            run.env.num_agents, seed)
     run.obs, _ = run.env.reset(seed=seed)
     run.state = run.model.initial_state(run.env.num_envs, run.env.num_agents)
     run.returns = np.zeros((run.env.num_envs, run.env.num_agents))
@@ -334,8 +336,9 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
         actions = out.action.cpu().numpy().astype(np.float64)
         stored = out.raw_action
         if run.expert is not None:
-            expert = expert_actions(run.expert, run.obs)
+            expert = run.expert.act(run.obs)
             actions = mix_actions(actions, expert, beta, run.rng)
+            run.expert.executed(actions, run.obs["active"])
             stored = torch.as_tensor(expert, dtype=torch.float32, device=device)
         rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value, out.percepts)
         comm.add(tally(out.message, obs_t["active"]))
