@@ -130,6 +130,14 @@ def test_init_from_loads_weights_and_refuses_another_model(resumed_and_straight)
                     ).with_run(init_from=str(source))
     with pytest.raises(CheckpointError, match=r"model config differs.*hidden_size"):
         build_run(other, DistInfo(), torch.device("cpu"))
+    # Only the model config is compared: a checkpoint written before a training option
+    # existed (here ``imitation.expert``) still starts a run.
+    payload = load_checkpoint(source)
+    del payload["config"]["imitation"]["expert"]
+    older = save_checkpoint(root / "older.pt", payload)
+    run = build_run(cfg.with_run(init_from=str(older)), DistInfo(), torch.device("cpu"))
+    for name, value in run.model.state_dict().items():
+        torch.testing.assert_close(value, _params(source)[name], rtol=0, atol=0)
 
 
 def test_stochastic_evaluation_samples_reproducibly_and_leaves_torch_rng_alone(

@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from collavn.configs import to_dict
 from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv
 from collavn.errors import CheckpointError
@@ -41,12 +42,17 @@ from collavn.models.state import AgentState
 from collavn.perception.encoder import EncoderFile, install_encoder, load_encoder
 from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
 from collavn.policies.base import CommStats
-from collavn.policies.checkpoint import load_checkpoint, save_checkpoint, tally
+from collavn.policies.checkpoint import (
+    checkpoint_model_config,
+    load_checkpoint,
+    save_checkpoint,
+    tally,
+)
 from collavn.scenes import Scene, load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.threads import apply_threads
 from collavn.training import distributed
-from collavn.training.checkpoint import check_config, differences, saved_config
+from collavn.training.checkpoint import check_config, differences
 from collavn.training.config import TrainConfig
 from collavn.training.imitation import (
     Expert,
@@ -193,8 +199,8 @@ def initialise_from(model: ActorCritic, cfg: TrainConfig, path: str) -> None:
     through new input columns that start at zero, so the run's first policy is the
     checkpoint's; the communication weights start fresh and learn from there.
     """
-    payload = load_checkpoint(path)
-    saved = saved_config(payload, path).to_dict()["model"]
+    payload = load_checkpoint(path)  # only its model matters (not its method or expert)
+    saved = to_dict(checkpoint_model_config(payload, path))
     diffs = differences(saved, cfg.to_dict()["model"], "model.")
     adds_messages = (saved["comm"]["variant"] == "none" != cfg.model.comm.variant
                      and all(d.startswith("model.comm.") for d in diffs))
