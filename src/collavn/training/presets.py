@@ -36,7 +36,7 @@ def _cpu() -> TrainConfig:
         model=replace(model, map=replace(model.map, hidden=128)),
         ppo=PPOConfig(rollout_steps=32, num_minibatches=2, update_epochs=4, lr=1e-3),
         mapping=MapTrainConfig(updates=2, batch_size=32, every=32, lr=3e-4),
-        imitation=ImitationConfig(dagger=True, buffer_rollouts=8, epochs=1),
+        imitation=ImitationConfig(expert="seeker", dagger=True, buffer_rollouts=8, epochs=1),
         run=RunConfig(num_envs=8, checkpoint_interval=20))
 
 
@@ -122,6 +122,12 @@ CPU_REASONS: dict[str, str] = {
                         "paper's IL is plain BC",
     "imitation.buffer_rollouts": "see imitation.dagger",
     "imitation.epochs": "one pass over the aggregated rollouts per update",
+    "imitation.expert": "il imitates the seeker (explorer until the goal is within 2 m in "
+                        "straight view, then the oracle), not the oracle from the start: "
+                        "on val40 0.448 → 0.598 easy, 0.280 → 0.400 medium SR (paired "
+                        "+0.150 [+0.087, +0.210], +0.120 [+0.065, +0.177]); the learner "
+                        "cannot tell where a farther goal is, and averaged the oracle's "
+                        "turns into pushing on into walls",
 }
 
 
