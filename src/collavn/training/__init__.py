@@ -9,8 +9,8 @@ checkpoint); ``collavn train`` (:mod:`collavn.cli.train`) sets every field of it
     torchrun --nproc-per-node 2 -m collavn.cli train --method no-com --preset cpu --out runs/d
 
 Methods: ``ours`` (memory communication), ``no-mem`` (handshake), ``no-com`` (IPPO) —
-all decentralized PPO with per-agent critics — and ``il`` (one agent clones the
-shortest-path oracle; copies of it act at test time). ``random`` lives in
+all decentralized PPO with per-agent critics — and ``il`` (one agent clones a
+privileged expert, the oracle or the seeker; copies of it act at test time). ``random`` lives in
 :mod:`collavn.policies`. Presets: ``paper`` keeps the paper's values;
 ``cpu`` departs from them as :func:`collavn.training.presets.preset_deviations`
 computes, each with its reason.

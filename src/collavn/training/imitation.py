@@ -1,20 +1,20 @@
-"""Method ``il``: one agent imitates the shortest-path oracle; copies of it act at test.
+"""Method ``il``: one agent imitates a privileged expert; copies of it act at test.
 
 The learner has no communication (``CommConfig.variant = "none"``) and shared weights,
 so it *is* a single-agent policy; during training every agent of an env runs a copy of
-it and each copy is supervised by the oracle's action towards its own goal (the other
+it and each copy is supervised by the expert's action towards its own goal (the other
 agents are just moving obstacles, as at test time).
 
-Behaviour cloning: the oracle drives (β = 1) and the policy maximises the likelihood of
-the oracle's action under its Gaussian — mean *and* learned standard deviation
+Behaviour cloning: the expert drives (β = 1) and the policy maximises the likelihood of
+the expert's action under its Gaussian — mean *and* learned standard deviation
 (``log_std``) — over active agent-steps, through the recurrent core over whole
 sequences. Mean squared error on the mean alone fixes σ, so the sampled policy stays as
 noisy as at initialisation while its mean, never asked to carry the action on its own,
 averages the expert into timid or wall-pushing moves; with the likelihood, σ shrinks to
 the residual error, the loss weighs the mean's errors by 1/σ², and the mean action is the
 policy to deploy. DAgger: the learner drives with probability ``1 − β`` per env and
-step, β decaying per update, and is still supervised by the oracle's action in the
-states it visits. The rollout stores the oracle's actions in ``Rollout.raw_actions``
+step, β decaying per update, and is still supervised by the expert's action in the
+states it visits. The rollout stores the expert's actions in ``Rollout.raw_actions``
 and, like PPO's, the stored percepts (a frozen encoder is never re-run by the update;
 the DAgger buffer keeps the map predictions made at collection).
 
@@ -45,7 +45,7 @@ from collavn.training.rollout import Rollout
 
 
 def expert_probability(cfg: ImitationConfig, iteration: int) -> float:
-    """β: the probability that the oracle drives at update ``iteration``."""
+    """β: the probability that the expert drives at update ``iteration``."""
     if not cfg.dagger:
         return 1.0
     return max(cfg.beta_min, cfg.beta_decay ** iteration)
@@ -113,7 +113,7 @@ def mix_actions(learner: np.ndarray, expert: np.ndarray, beta: float,
 
 
 def imitation_loss(model: ActorCritic, batch: Rollout) -> Tensor:
-    """Negative log-likelihood of the oracle's actions, mean over active ``(T, E, N)``.
+    """Negative log-likelihood of the expert's actions, mean over active ``(T, E, N)``.
 
     ``-log N(a* | μ(s), σ)`` with the policy's own mean and learned state-independent σ.
     """

@@ -1,7 +1,7 @@
 """The training loop: collect a rollout → bootstrap → GAE → PPO epochs → log → checkpoint.
 
 :func:`train` reads in the algorithm's order; each step is a named function below.
-Method ``il`` replaces "GAE + PPO" by a supervised step on the oracle's actions
+Method ``il`` replaces "GAE + PPO" by a supervised step on the expert's actions
 (:mod:`collavn.training.imitation`); the map module learns alongside from its FIFO
 (:mod:`collavn.training.map_training`) between policy updates, from the samples of the
 rollouts.
@@ -101,7 +101,7 @@ class Run:
 
 
 def env_config(cfg: TrainConfig) -> EnvConfig:
-    """``cfg.env`` plus what the run needs: depth and gt maps for the map, oracle info.
+    """``cfg.env`` plus what the run needs: depth and gt maps for the map, expert info.
 
     ``depth``, ``free_space``, ``gt_map``, ``gt_map_size`` and ``privileged`` are set here,
     from the model and the method, whatever ``cfg.env`` says.
@@ -317,7 +317,7 @@ def sync_point(run: Run) -> None:
 
 
 def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
-    """Step the envs ``rollout_steps`` times with the current policy (or the oracle mix).
+    """Step the envs ``rollout_steps`` times with the current policy (or the expert mix).
 
     Returns:
         The rollout (with ``last_value`` bootstrapped) and collection statistics.
