@@ -99,9 +99,17 @@ class ExplorerPolicy:
                 bumped[e, n] = False
             free = free_runs(depth[e, n], self.radius, self.camera_height, self.fov, self.band)
             actions[e, n] = self._decide(free, bool(bumped[e, n]), state.rngs[e][n])
-        p = self.params
-        state.expected = np.where(active, actions[..., 0] * p.max_linear * p.step_seconds, 0.0)
+        self.executed(state, actions, active)
         return actions, state
+
+    def executed(self, state: ExplorerState, actions: np.ndarray, active: np.ndarray) -> None:
+        """Record the ``(E, N, 2)`` actions the env was given (the odometry check's base).
+
+        The next step compares the distance driven with what they should have driven.
+        """
+        p = self.params
+        state.expected = np.where(active, np.abs(actions[..., 0]) * p.max_linear
+                                  * p.step_seconds, 0.0)
 
     @property
     def radius(self) -> float:

@@ -103,9 +103,7 @@ class SeekerPolicy:
 
     def executed(self, state: SeekerState, actions: np.ndarray, active: np.ndarray) -> None:
         """Record the ``(E, N, 2)`` actions the env was given (the odometry check's base)."""
-        p = self.explorer.params
-        state.explore.expected = np.where(active, np.abs(actions[..., 0]) * p.max_linear
-                                          * p.step_seconds, 0.0)
+        self.explorer.executed(state.explore, actions, active)
 
 
 @dataclass
