@@ -303,11 +303,14 @@ class EvaluateOutput:
 
     Attributes:
         log_prob: ``(T, E, N)``; entropy: ``(T, E, N)``; value: ``(T, E, N)``.
+        target_log_prob: ``(T, E, N)`` log-probability of the ``targets`` passed to
+            :meth:`ActorCritic.evaluate_actions` (an expert's actions), if any.
     """
 
     log_prob: Tensor
     entropy: Tensor
     value: Tensor
+    target_log_prob: Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -433,7 +436,8 @@ class ActorCritic(nn.Module):
 
     def evaluate_actions(self, obs: Mapping[str, Tensor], state: AgentState,
                          episode_start: Tensor, raw_actions: Tensor,
-                         percepts: Mapping[str, Tensor] | None = None) -> EvaluateOutput:
+                         percepts: Mapping[str, Tensor] | None = None,
+                         targets: Tensor | None = None) -> EvaluateOutput:
         """Re-run stored sequences for recurrent PPO (and imitation).
 
         The networks without a recurrence (encoders, map encoder, feature projection) run
@@ -449,10 +453,18 @@ class ActorCritic(nn.Module):
             episode_start: ``(T, E, N)`` bool.
             raw_actions: ``(T, E, N, 2)`` unclipped actions from :meth:`act`.
             percepts: Stored percepts ``(T, E, N, ...)`` (see :meth:`forward`).
+            targets: ``(T, E, N, 2)`` other actions to score (PPO's behaviour-cloning
+                term: the expert's actions), under the same distribution with its σ
+                detached: only the means (and mixture weights) learn from them.
         """
         run = self._unroll(obs, state, episode_start, percepts)
         dist = action_distribution(run.mean, run.log_std, run.logits)
-        return EvaluateOutput(dist.log_prob(raw_actions), dist.entropy(), run.value)
+        target_log_prob = None
+        if targets is not None:
+            target_log_prob = action_distribution(run.mean, run.log_std.detach(),
+                                                  run.logits).log_prob(targets)
+        return EvaluateOutput(dist.log_prob(raw_actions), dist.entropy(), run.value,
+                              target_log_prob)
 
     def _unroll(self, obs: Mapping[str, Tensor], state: AgentState, starts: Tensor,
                 stored: Mapping[str, Tensor] | None) -> Unrolled:

@@ -110,9 +110,32 @@ class PPOConfig:
     rate Adam's normalised steps move ψ's matrix coherently, every pair's score at once,
     and the gates drift shut (below η they get almost no gradient back); 0.1 kept them
     open in our runs (README, "Why the gates close")."""
+    bc_coef: float = 0.0
+    """Weight of a behaviour-cloning term in PPO's loss: the negative log-likelihood of
+    the expert's action (``--imitation.expert``, ``--imitation.sight``) in every state PPO
+    visits, under the policy's means with its σ held fixed (0 = plain PPO). The expert
+    runs beside the policy during collection, on privileged observations the policy
+    never reads. Meant to keep the mean action of a policy fine-tuned from an ``il``
+    checkpoint near what it imitated while the reward pulls it on: PPO's reward
+    (progress along the geodesic) does not pay for the search the expert does before
+    the goal is in sight."""
+    bc_decay: float = 1.0
+    """The behaviour-cloning weight is ``bc_coef × bc_decay ** update`` (1 = constant)."""
+    start_std: float = 0.0
+    """Set the policy's σ (every action dimension) to this when a run starts, after
+    ``--init-from`` (0 = keep the model's initial or the checkpoint's σ; a resumed run
+    keeps its own). PPO improves the policy whose actions it samples, but the policy is
+    scored by its mean action; from an ``il`` checkpoint (σ ≈ 0.35, on actions in
+    [−1, 1]) the two drive differently, and a small σ keeps PPO's samples near the mean
+    it will be scored on."""
 
     def __post_init__(self) -> None:
         check_number("--ppo.target-kl", self.target_kl, allow_minimum=True)
+        check_number("--ppo.bc-coef", self.bc_coef, allow_minimum=True)
+        check_number("--ppo.bc-decay", self.bc_decay)
+        check_number("--ppo.start-std", self.start_std, allow_minimum=True)
+        if self.bc_decay > 1:
+            raise ConfigError(f"--ppo.bc-decay must be in (0, 1], got {self.bc_decay}")
         check_number("--ppo.comm-lr-scale", self.comm_lr_scale, allow_minimum=True)
         for name in ("rollout_steps", "num_minibatches", "update_epochs"):
             check_count(f"--ppo.{name.replace('_', '-')}", getattr(self, name))
@@ -159,10 +182,10 @@ class ImitationConfig:
     """Imitation of a privileged expert, the shortest-path oracle by default (method ``il``)."""
 
     expert: Literal["oracle", "seeker"] = "oracle"
-    """Whom ``il`` imitates: ``oracle``, the shortest path from the first step (the paper's
-    baseline); ``seeker``, the explorer's moves (deterministic) until the goal is in
-    sight, then the oracle's — every move inferable from what the agent sees (see
-    :mod:`collavn.policies.seeker`)."""
+    """Whom ``il`` imitates (and PPO's ``--ppo.bc-coef`` term): ``oracle``, the shortest
+    path from the first step (the paper's baseline); ``seeker``, the explorer's moves
+    (deterministic) until the goal is in sight, then the oracle's — every move inferable
+    from what the agent sees (see :mod:`collavn.policies.seeker`)."""
     sight: float = 2.0
     """``seeker`` only: the goal is in sight within this many metres along a navigable
     straight line."""

@@ -33,6 +33,9 @@ class PPOStats:
         clip_fraction: Fraction of ratios outside ``[1 − ε, 1 + ε]``.
         loss: The total optimised loss.
         epochs: Epochs run (fewer than ``update_epochs`` when ``target_kl`` stopped them).
+        bc_loss: Negative log-likelihood of the expert's actions (0 without
+            ``--ppo.bc-coef``).
+        bc_weight: The weight it had in ``loss``.
         grad_norm: Norm of the whole gradient before clipping.
         comm_grad_norm: Norm of the communication parameters' part of it (0 without
             messages): how hard the losses pull on what is sent and when gates open.
@@ -47,6 +50,8 @@ class PPOStats:
     epochs: float
     grad_norm: float = 0.0
     comm_grad_norm: float = 0.0
+    bc_loss: float = 0.0
+    bc_weight: float = 0.0
 
 
 def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
@@ -56,13 +61,20 @@ def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
 
 
 def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Tensor,
-             cfg: PPOConfig, critic_only: bool = False) -> tuple[Tensor, dict[str, float]]:
+             cfg: PPOConfig, critic_only: bool = False,
+             bc_weight: float = 0.0) -> tuple[Tensor, dict[str, float]]:
     """The PPO loss of one mini-batch of sequences ``(T, E_b, N)`` and its statistics.
 
     ``critic_only``: the optimised loss is the value term alone (statistics as usual).
+    ``bc_weight`` > 0 adds ``bc_weight × −log π(a* | s)`` over active steps, ``a*`` the
+    expert's actions stored in ``batch.expert_actions``.
     """
+    if bc_weight > 0 and batch.expert_actions is None:
+        raise ValueError("a behaviour-cloning weight needs a rollout with expert_actions "
+                         "(collected with --ppo.bc-coef > 0)")
     out = model.evaluate_actions(batch.obs, batch.initial_state, batch.episode_start,
-                                 batch.raw_actions, batch.percepts)
+                                 batch.raw_actions, batch.percepts,
+                                 batch.expert_actions if bc_weight > 0 else None)
     mask = batch.active
     adv = advantages
     if cfg.norm_adv:
@@ -76,10 +88,14 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
     policy_loss = masked_mean(surrogate, mask)
     value_loss = 0.5 * masked_mean((out.value - returns) ** 2, mask)
     entropy = masked_mean(out.entropy, mask)
+    bc_loss = (-masked_mean(out.target_log_prob, mask) if out.target_log_prob is not None
+               else torch.zeros(()))
     loss = (cfg.vf_coef * value_loss if critic_only
-            else policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy)
+            else policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
+            + bc_weight * bc_loss)
     with torch.no_grad():
         parts = {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy,
+                 "bc_loss": bc_loss, "bc_weight": torch.tensor(bc_weight),
                  "loss": loss, "approx_kl": masked_mean((ratio - 1) - log_ratio, mask),
                  "clip_fraction": masked_mean(((ratio - 1).abs() > cfg.clip_coef).float(),
                                               mask)}
@@ -123,7 +139,7 @@ def minibatch_envs(num_envs: int, num_minibatches: int,
 def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Rollout,
                advantages: Tensor, returns: Tensor, cfg: PPOConfig, generator: torch.Generator,
                sync_gradients: Callable[[], None] | None = None,
-               critic_only: bool = False) -> PPOStats:
+               critic_only: bool = False, bc_weight: float = 0.0) -> PPOStats:
     """``update_epochs`` passes of ``num_minibatches`` gradient steps over one rollout.
 
     Args:
@@ -139,6 +155,7 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Ro
         critic_only: Optimise the value loss and step only the critic's own parameters
             (:func:`critic_parameters`); everything else keeps its weights and its
             optimizer state.
+        bc_weight: Weight of the behaviour-cloning term (see :func:`ppo_loss`).
     """
     params = [p for group in optimizer.param_groups for p in group["params"]]
     critic = {id(p) for p in critic_parameters(model)}
@@ -150,7 +167,7 @@ def ppo_update(model: ActorCritic, optimizer: torch.optim.Optimizer, rollout: Ro
         epoch_kl: list[float] = []
         for index in minibatch_envs(rollout.rewards.shape[1], cfg.num_minibatches, generator):
             loss, stats = ppo_loss(model, rollout.select_envs(index), advantages[:, index],
-                                   returns[:, index], cfg, critic_only)
+                                   returns[:, index], cfg, critic_only, bc_weight)
             optimizer.zero_grad(set_to_none=False)
             loss.backward()
             if sync_gradients is not None:

@@ -50,6 +50,8 @@ class Rollout:
         truncated: ``(T, E, N)`` bool.
         initial_state: The recurrent state before step 0 (detached).
         last_value: ``(E, N)`` value of the observation after step ``T - 1``.
+        expert_actions: ``(T, E, N, 2)`` the expert's actions in the visited states, for
+            PPO's behaviour-cloning term (``--ppo.bc-coef``); ``None`` without one.
     """
 
     obs: dict[str, Tensor]
@@ -63,13 +65,16 @@ class Rollout:
     truncated: Tensor
     initial_state: AgentState
     last_value: Tensor
+    expert_actions: Tensor | None = None
 
     @classmethod
     def allocate(cls, steps: int, first_obs: Mapping[str, Tensor], initial_state: AgentState,
-                 percepts: Mapping[str, Tensor] | None = None) -> Rollout:
+                 percepts: Mapping[str, Tensor] | None = None,
+                 expert: bool = False) -> Rollout:
         """Empty storage for ``steps`` steps shaped like one step's ``(E, N, ...)`` inputs.
 
-        ``first_obs`` and ``percepts`` give the entries kept and their shapes.
+        ``first_obs`` and ``percepts`` give the entries kept and their shapes; ``expert``
+        adds room for the expert's actions.
         """
         e, n = first_obs["active"].shape
         dev = first_obs["active"].device
@@ -82,7 +87,8 @@ class Rollout:
         stored = {k: torch.zeros(steps, *v.shape, dtype=v.dtype, device=dev)
                   for k, v in (percepts or {}).items()}
         return cls(obs, stored, z(dtype=torch.bool), z(2), z(), z(), z(), z(dtype=torch.bool),
-                   z(dtype=torch.bool), initial_state.detach(), torch.zeros(e, n, device=dev))
+                   z(dtype=torch.bool), initial_state.detach(), torch.zeros(e, n, device=dev),
+                   z(2) if expert else None)
 
     @property
     def steps(self) -> int:
@@ -123,7 +129,8 @@ class Rollout:
                        self.log_probs[:, index], self.values[:, index],
                        self.rewards[:, index], self.terminated[:, index],
                        self.truncated[:, index], self.initial_state.select_envs(index),
-                       self.last_value[index])
+                       self.last_value[index],
+                       None if self.expert_actions is None else self.expert_actions[:, index])
 
 
 def compute_gae(rewards: Tensor, values: Tensor, terminated: Tensor, truncated: Tensor,

@@ -22,6 +22,7 @@ directory is moved aside).
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
@@ -107,11 +108,16 @@ def env_config(cfg: TrainConfig) -> EnvConfig:
     from the model and the method, whatever ``cfg.env`` says.
     """
     m = cfg.model.map
-    seeker = cfg.method_spec.imitation and cfg.imitation.expert == "seeker"
+    seeker = has_expert(cfg) and cfg.imitation.expert == "seeker"
     return replace(cfg.env, depth=m.use_depth or seeker, free_space=cfg.model.free_space_input,
                    gt_map=cfg.mapping.enabled,
                    gt_map_size=round(m.local_size * m.resolution / 0.1),
-                   privileged=cfg.method_spec.imitation)
+                   privileged=has_expert(cfg))
+
+
+def has_expert(cfg: TrainConfig) -> bool:
+    """The run consults an expert: ``il``, or PPO with a behaviour-cloning term."""
+    return cfg.method_spec.imitation or cfg.ppo.bc_coef > 0
 
 
 def set_train_mode(model: nn.Module) -> None:
@@ -153,6 +159,11 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     model = ActorCritic(cfg.model, device=device)
     if cfg.run.init_from:
         initialise_from(model, cfg, cfg.run.init_from)
+    if cfg.ppo.start_std > 0 and not cfg.method_spec.imitation:
+        with torch.no_grad():
+            for tower in model.towers:
+                assert isinstance(tower, AgentTower)
+                tower.log_std.fill_(math.log(cfg.ppo.start_std))
     if encoder is not None:
         install_encoder(model, encoder, cfg.env.camera_height)
     distributed.broadcast_parameters(model)
@@ -161,7 +172,7 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     maps = MapTrainer(model, cfg.mapping, cfg.model.map.use_depth, info.seed(cfg.run.seed),
                       distributed.average_gradients if info.enabled else None)
     expert = (Expert(cfg.imitation, env.scenes, env.num_envs, env.num_agents, cfg.run.seed)
-              if cfg.method_spec.imitation else None)
+              if has_expert(cfg) else None)
     return Run(cfg, info, device, env, model, optimizer, maps, expert, scenes=scenes)
 
 
@@ -327,6 +338,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     assert run.state is not None
     obs_t = obs_to_torch(run.obs, keys, device)
     rollout: Rollout | None = None
+    imitating = cfg.method_spec.imitation
     beta = expert_probability(cfg.imitation, run.iteration)
     comm, scores = CommStats(), ScoreTally()
     start = time.perf_counter()
@@ -334,18 +346,24 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
         start_t = episode_start(run.obs, device)
         # DAgger's learner drives with its mean action, the policy that is evaluated: the
         # expert then labels the states that action reaches (pressed against a wall, …)
-        out = model.act(obs_t, run.state, start_t, deterministic=run.expert is not None)
+        out = model.act(obs_t, run.state, start_t, deterministic=imitating)
         if rollout is None:  # stores only what the update reads (see Rollout)
             rollout = Rollout.allocate(
                 cfg.ppo.rollout_steps, {k: obs_t[k] for k in model.replay_keys()},
-                run.state, {k: out.percepts[k] for k in model.stored_percepts})
+                run.state, {k: out.percepts[k] for k in model.stored_percepts},
+                expert=run.expert is not None and not imitating)
         actions = out.action.cpu().numpy().astype(np.float64)
         stored = out.raw_action
         if run.expert is not None:
-            expert = run.expert.act(run.obs)
-            actions = mix_actions(actions, expert, beta, run.rng)
+            expert_np = run.expert.act(run.obs)
+            expert = torch.as_tensor(expert_np, dtype=torch.float32, device=device)
+            if imitating:  # DAgger's mix; the expert's action is the target
+                actions = mix_actions(actions, expert_np, beta, run.rng)
+                stored = expert
+            else:  # PPO's behaviour-cloning target beside the policy's own action
+                assert rollout.expert_actions is not None
+                rollout.expert_actions[t] = expert
             run.expert.executed(actions, run.obs["active"])
-            stored = torch.as_tensor(expert, dtype=torch.float32, device=device)
         rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value, out.percepts)
         comm.add(tally(out.message, obs_t["active"]))
         if model.cfg.comm.variant != "none":
@@ -364,7 +382,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
                      **{f"comm/{k}": v for k, v in scores.rates().items()},
                      **message_weight(model),
                      "perf/collect_seconds": seconds,
-                     **({"imitation/beta": beta} if run.expert is not None else {})}
+                     **({"imitation/beta": beta} if imitating else {})}
 
 
 def track_episodes(run: Run, reward: np.ndarray, info: dict[str, Any]) -> None:
@@ -393,8 +411,9 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
                                       rollout.truncated, rollout.last_value, cfg.ppo.gamma,
                                       cfg.ppo.gae_lambda)
     warmup = run.iteration < cfg.ppo.critic_warmup
+    bc_weight = cfg.ppo.bc_coef * cfg.ppo.bc_decay ** run.iteration
     stats = ppo_update(run.model, run.optimizer, rollout, advantages, returns, cfg.ppo,
-                       run.generator, sync, critic_only=warmup)
+                       run.generator, sync, critic_only=warmup, bc_weight=bc_weight)
     run.maps.train_owed()  # between updates: the next rollout is scored as collected
     return {f"loss/{k}": v for k, v in stats.__dict__.items()} | {
         "loss/critic_warmup": float(warmup)}
