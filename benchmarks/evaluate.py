@@ -24,6 +24,7 @@ from collavn.datasets.generator import sample_episodes
 from collavn.envs import EnvConfig
 from collavn.evaluation.runner import evaluate
 from collavn.models import ActorCritic, ModelConfig
+from collavn.policies.adapter import env_overrides
 from collavn.policies.checkpoint import BLOCK_ENVS, CheckpointPolicy, load_policy
 from collavn.scenes import load_scene
 from collavn.threads import apply_threads
@@ -45,9 +46,7 @@ def main() -> None:
         torch.manual_seed(0)
         cfg = ModelConfig.cpu()
         model = ActorCritic(cfg)
-        _, h, w = cfg.panorama_shape
-        overrides = {"panorama_width": w, "panorama_height": h, "goal_size": cfg.goal_shape[-1],
-                     "free_space": cfg.free_space_input}
+        overrides = env_overrides(cfg)
     env = replace(EnvConfig(task="commongoal", num_agents=2), **overrides)
     scene = load_scene(args.scene)
     episodes = sample_episodes(scene, "commongoal", 2, "easy", args.episodes,

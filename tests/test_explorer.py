@@ -7,12 +7,14 @@ import pytest
 
 from collavn.datasets.generator import sample_episodes
 from collavn.envs import EnvConfig
+from collavn.envs.free_space import ExploreRule
 from collavn.envs.vector import VectorEnv
 from collavn.evaluation.runner import evaluate
 from collavn.metrics import compute_metrics
 from collavn.policies import ExplorerPolicy, OraclePolicy, RandomPolicy, make_policy
 from collavn.policies.explorer import free_runs, panorama_azimuths
 from collavn.scenes import load_scene
+from collavn.simulation.kinematics import AgentParams
 
 SMALL = EnvConfig(num_agents=1, panorama_width=64, panorama_height=16, goal_size=8,
                   depth=True, difficulty="easy")
@@ -127,3 +129,41 @@ def test_free_runs_of_a_batch_and_of_fewer_directions_agree_with_one_frame_each(
     assert eight[1, 0, 4] == pytest.approx(2.0 - 0.2, abs=1e-4)
     with pytest.raises(ValueError, match=r"directions \(5\) must divide the panorama width"):
         free_runs(depth, radius=0.2, directions=5)
+
+
+def test_explore_rule_turns_to_the_nearest_of_tied_open_directions_without_a_generator():
+    rule, params = ExploreRule(open_fraction=1.0), AgentParams()
+    free = np.full((2, 8), 1.0)
+    free[:, 4] = 0.1                  # blocked straight ahead (column W/2)
+    free[:, [2, 6]] = 3.0             # most open: 90° left (column 2) and right (6), a tie
+    moves = rule.moves(free, np.array([False, True]), params)
+    np.testing.assert_allclose(moves, [[0.0, 0.5], [0.0, 0.5]])  # left: +π/2 of π per step
+    # clear ahead: full speed, or just short of an obstacle nearer than a step's travel
+    free[0, 4], free[1, 4] = 5.0, 0.35
+    moves = rule.moves(free, np.array([False, False]), params)
+    np.testing.assert_allclose(moves, [[1.0, 0.0], [0.5, 0.0]])
+    # a bump turns away from straight ahead whatever the depth says
+    assert rule.moves(free, np.array([True, True]), params)[:, 0].tolist() == [0.0, 0.0]
+
+
+def test_the_explore_action_sensor_is_the_deterministic_explorers_move(apartment):
+    """Also after actions other than its own (DAgger's learner drives): the sensor's bump
+    check compares odometry with what the executed action should have driven."""
+    cfg = replace(SMALL, num_agents=2, explore_action=True)
+    env = VectorEnv([apartment], 3, cfg, seed=1)
+    obs, _ = env.reset(seed=1)
+    policy = ExplorerPolicy(0, open_fraction=1.0, deterministic=True)
+    state = policy.initial_state(3, 2)
+    other = np.random.default_rng(0)
+    turns = 0
+    for t in range(50):
+        actions, state = policy.act(obs, state)
+        active = obs["active"]
+        np.testing.assert_array_equal(obs["explore_action"][active],
+                                      actions[active].astype(np.float32))
+        turns += int((actions[active][:, 0] == 0).sum())
+        if t % 3 == 0:  # someone else drives
+            actions = other.uniform(-1, 1, actions.shape)
+            policy.executed(state, actions, active)
+        obs, *_ = env.step(actions)
+    assert turns > 10  # the comparison covered turns, not only straight runs

@@ -3,7 +3,7 @@ import torch
 
 from collavn.models import ActorCritic, AgentState, CommConfig, MapConfig, ModelConfig, map_loss
 from collavn.models.mapping import blend_features
-from collavn.models.policy import gru_step
+from collavn.models.policy import action_mean, gru_step
 
 torch.set_num_threads(1)
 
@@ -24,6 +24,7 @@ def observations(e: int, n: int, seed: int, shape=(16, 64), goal=(16, 16)):
         goal=torch.randint(0, 256, (e, n, 3, *goal), generator=g, dtype=torch.uint8),
         pose_delta=torch.randn(e, n, 3, generator=g) * 0.3,
         free_space=torch.rand(e, n, 16, generator=g) * 4.0,  # read iff free_space_input
+        explore_action=torch.rand(e, n, 2, generator=g) * 2 - 1,  # read iff explore_prior
         active=torch.ones(e, n, dtype=torch.bool))
 
 
@@ -100,9 +101,10 @@ def test_deterministic_action_is_clipped_mean():
     assert (out.raw_action > 2.9).all()
 
 
-def test_evaluate_actions_reproduces_rollout_log_probs():
+@pytest.mark.parametrize("prior", [False, True])
+def test_evaluate_actions_reproduces_rollout_log_probs(prior):
     torch.manual_seed(0)
-    model = ActorCritic(tiny()).eval()
+    model = ActorCritic(tiny(explore_prior=prior)).eval()
     e, n, steps = 2, 3, 4
     state0 = model.initial_state(e, n)
     state = state0
@@ -186,6 +188,32 @@ def test_odometry_input_reaches_the_actor_but_not_at_an_episode_start():
     start = torch.zeros(1, 2, dtype=torch.bool)
     out = model(dict(obs, pose_delta=delta[None]), state, start)
     assert torch.isfinite(out.dist.mean).all()
+
+
+@pytest.mark.parametrize("modes", [1, 3])
+def test_explore_prior_is_the_mean_of_an_untrained_head_and_an_input(modes):
+    torch.manual_seed(0)
+    model = ActorCritic(tiny("none", explore_prior=True, action_modes=modes))
+    plain = ActorCritic(tiny("none", explore_prior=False, action_modes=modes))
+    assert model.towers[0].actor_core.input_size == plain.towers[0].actor_core.input_size + 2
+    with torch.no_grad():  # a head that adds nothing
+        model.towers[0].actor_mean.weight.zero_()
+        model.towers[0].actor_mean.bias.zero_()
+    obs = observations(2, 3, 0)
+    start = torch.ones(2, 3, dtype=torch.bool)
+    out = model.act(obs, model.initial_state(2, 3), start, deterministic=True)
+    torch.testing.assert_close(out.raw_action, obs["explore_action"])
+    # the prior is also an input: a different move changes more than the added part
+    moved = dict(obs, explore_action=-obs["explore_action"])
+    with torch.no_grad():
+        model.towers[0].actor_mean.weight.normal_()
+    a = model(obs, model.initial_state(2, 3), start).dist
+    b = model(moved, model.initial_state(2, 3), start).dist
+    shift = action_mean(a) - action_mean(b) - 2 * obs["explore_action"]
+    assert shift.abs().max() > 1e-4  # not only the additive part changed
+    with pytest.raises(ValueError, match=r"EnvConfig\.explore_action"):
+        model.act({k: v for k, v in obs.items() if k != "explore_action"},
+                  model.initial_state(2, 3), start)
 
 
 def test_gru_step_is_pytorchs_gru_cell():

@@ -1,6 +1,8 @@
 """The seeker: the explorer's moves until the goal is in sight, the oracle's after."""
 
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -29,10 +31,10 @@ def apartment():
 
 def test_seeker_explores_out_of_sight_and_homes_in_sight_for_the_rest_of_the_episode(
         apartment):
-    env = VectorEnv([apartment], 1, SMALL, seed=3)
+    env = VectorEnv([apartment], 1, replace(SMALL, explore_action=True), seed=3)
     obs, _ = env.reset(seed=3)
     seeker = SeekerPolicy([apartment], sight=2.0)
-    explorer = ExplorerPolicy(0, open_fraction=1.0)
+    explorer = ExplorerPolicy(0, open_fraction=1.0, deterministic=True)
     oracle = OraclePolicy([apartment])
     pose, goal = obs["world_pose"][0], obs["goal_position"][0]
     far = np.array([goal[0, 0] + 50.0, goal[0, 1]])  # nowhere near: never in sight
@@ -42,6 +44,8 @@ def test_seeker_explores_out_of_sight_and_homes_in_sight_for_the_rest_of_the_epi
     actions, state = seeker.act(obs, state)
     expected_explore, _ = explorer.act(obs, explorer.initial_state(1, 2))
     np.testing.assert_array_equal(actions[0, 0], expected_explore[0, 0])
+    # the search move is the explore_action sensor's: what a learner reads (explore_prior)
+    np.testing.assert_array_equal(actions[0, 0].astype(np.float32), obs["explore_action"][0, 0])
     np.testing.assert_array_equal(actions[0, 1], oracle.act_one(apartment, pose, 1, near))
     assert state.seen.tolist() == [[False, True]]
     # Out of sight again later in the episode: still homing (the latch) …

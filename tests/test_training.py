@@ -135,11 +135,9 @@ def test_every_config_field_is_a_flag_with_a_docstring_in_help(capsys):
     assert "--model.panorama-shape" not in text  # derived from env, not a flag
 
 
-def _fixed_batch(method: str, num_envs: int = 2, action_modes: int = 1):
+def _fixed_batch(method: str, num_envs: int = 2, **model):
     cfg = tiny_config(method=method, rollout_steps=6)
-    if action_modes > 1:
-        cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model,
-                                                                 action_modes=action_modes))
+    cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, **model))
     cfg = cfg.with_run(num_envs=num_envs)
     torch.set_num_threads(1)
     run = build_run(cfg, DistInfo(), torch.device("cpu"))
@@ -182,15 +180,17 @@ def test_target_kl_stops_the_epochs_once_the_policy_has_moved():
         dataclasses.replace(cfg.ppo, target_kl=-1.0)
 
 
-@pytest.mark.parametrize("method,modes", [("ours", 1), ("no-mem", 1), ("no-com", 3)])
-def test_ppo_scores_a_rollout_with_the_model_that_collected_it(method, modes):
+@pytest.mark.parametrize("method,modes,prior", [("ours", 1, False), ("no-mem", 1, False),
+                                               ("no-com", 3, False), ("ours", 1, True)])
+def test_ppo_scores_a_rollout_with_the_model_that_collected_it(method, modes, prior):
     from collavn.training.map_training import map_parameters
     from collavn.training.trainer import learn
 
     # 4 envs × 2 agents: the BLAS kernels round a batch of fewer than 8 rows (one step
     # of 2 × 2 agents) differently from a larger one, and the update replays all steps
     # as one batch; from 8 rows on, the results do not depend on the batch size
-    _, run, rollout = _fixed_batch(method, num_envs=4, action_modes=modes)
+    _, run, rollout = _fixed_batch(method, num_envs=4, action_modes=modes, explore_prior=prior)
+    assert ("explore_action" in rollout.obs) == prior  # stored: the replay adds it again
     assert run.maps.owed > 0  # map updates are owed, not yet taken
     with torch.no_grad():
         out = run.model.evaluate_actions(rollout.obs, rollout.initial_state,

@@ -39,6 +39,12 @@ class EnvConfig:
             robot's body can drive straight before touching what the depth panorama
             shows, up to 4 m (``free_space (E, N, D)``; see :mod:`collavn.envs.free_space`).
             Renders nothing extra: it is read off the depth the renderer makes anyway.
+        explore_action: Also return ``explore_action (E, N, 2)``: the move the goal-blind
+            explorer's rule makes now (drive straight while free, else turn in place to
+            the most open direction; away from straight ahead when the last drive fell
+            short of what its action should have driven), a function of the agent's own
+            depth panorama, odometry and last action only (see
+            :class:`~collavn.envs.free_space.ExploreRule`; the ``seeker``'s search move).
         odometry_noise: Std of Gaussian noise added to ``pose_delta`` (metres and
             radians); 0 = noise-free (default).
         max_steps: Episode length T.
@@ -64,6 +70,7 @@ class EnvConfig:
     gt_map: bool = False
     gt_map_size: int = 64
     free_space: int = 0
+    explore_action: bool = False
     odometry_noise: float = 0.0
     max_steps: int = 80
     difficulty: DifficultyChoice = "mixed"

@@ -4,12 +4,19 @@ The geometry behind the goal-blind explorer (:mod:`collavn.policies.explorer`) a
 ``free_space`` sensor (``EnvConfig.free_space``): from each panorama column's nearest
 obstacle hit (between floor-bump and robot height), the distance a disc of the robot's
 radius can drive along a direction before touching one. It sees only what the panorama
-sees (not what lies between two rays or below the camera's view).
+sees (not what lies between two rays or below the camera's view). :class:`ExploreRule`
+turns the free runs into the explorer's move, which the ``explore_action`` sensor
+(``EnvConfig.explore_action``) reports to a policy.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import numpy as np
+
+from collavn.simulation.kinematics import AgentParams
 
 #: Metres beyond which the ``free_space`` sensor reports no obstacle.
 FREE_SPACE_RANGE = 4.0
@@ -76,3 +83,75 @@ def free_runs(depth: np.ndarray, radius: float, camera_height: float = 0.9,
     contact = along - np.sqrt(np.maximum(radius**2 - across**2, 0.0))
     run = np.where(blocking, contact, horizon).min(axis=-1, initial=horizon)
     return np.maximum(run, 0.0)
+
+
+@dataclass(frozen=True)
+class ExploreRule:
+    """The goal-blind explorer's rule: drive straight while free, else turn to open space.
+
+    Attributes:
+        margin: Extra clearance kept from obstacle points, metres (covers the 10 cm
+            navigation grid and the gaps between rays).
+        min_advance: Drive only if at least this many metres are free ahead.
+        open_fraction: A direction is open if its free run is at least this fraction
+            of the longest one (1 = only the most open).
+        band: Heights above the floor between which a hit is an obstacle (the
+            navigation grid's ``step_height`` and ``agent_height``).
+    """
+
+    margin: float = 0.12
+    min_advance: float = 0.25
+    open_fraction: float = 0.8
+    band: tuple[float, float] = (0.05, 1.0)
+
+    def free(self, depth: np.ndarray, params: AgentParams, camera_height: float = 0.9,
+             fov: float = np.pi / 2) -> np.ndarray:
+        """``(..., W)`` free runs of the robot's body plus :attr:`margin`, every column."""
+        return free_runs(depth, params.radius + self.margin, camera_height, fov, self.band)
+
+    def moves(self, free: np.ndarray, bumped: np.ndarray, params: AgentParams,
+              rngs: Sequence[np.random.Generator] | None = None) -> np.ndarray:
+        """``(B, 2)`` actions from free runs ``(B, W)`` and odometry bumps ``(B,)``.
+
+        A clear way ahead (at least :attr:`min_advance`) and no bump: full speed, or
+        just short of the obstacle when that is nearer than one step's travel. Else a
+        turn in place towards an open direction — away from straight ahead after a
+        bump (the last drive fell short: something the panorama does not show), and
+        not the half-turn back when any other is open. ``rngs`` (one per row) choose
+        among the open directions at random; without them the open direction nearest
+        the heading is taken (the left one of a tie), so the move is a function of the
+        depth and the bump alone.
+        """
+        free = np.asarray(free, dtype=np.float64)
+        bumped = np.asarray(bumped, dtype=bool)
+        width = free.shape[-1]
+        azimuth = panorama_azimuths(width)
+        ahead = free[:, width // 2]
+        drive = (ahead >= self.min_advance) & ~bumped
+        allowed = np.where(bumped[:, None], np.abs(azimuth) >= np.pi / 4, True)
+        longest = np.where(allowed, free, -np.inf).max(axis=1, keepdims=True)
+        is_open = allowed & (free >= self.open_fraction * longest)
+        front = is_open & (np.abs(azimuth) <= 0.75 * np.pi)
+        is_open = np.where(front.any(axis=1, keepdims=True), front, is_open)
+        if rngs is None:
+            pick = np.where(is_open, np.abs(azimuth), np.inf).argmin(axis=1)
+        else:
+            pick = np.zeros(len(free), np.int64)
+            for b in np.flatnonzero(~drive).tolist():  # draw only for a turn
+                pick[b] = rngs[b].choice(np.flatnonzero(is_open[b]))
+        step = params.max_linear * params.step_seconds
+        turn = np.clip(azimuth[pick] / (params.max_angular * params.step_seconds), -1.0, 1.0)
+        return np.where(drive[:, None],
+                        np.stack([np.minimum(1.0, ahead / step), np.zeros_like(ahead)], -1),
+                        np.stack([np.zeros_like(turn), turn], -1))
+
+
+def bumped(moved: np.ndarray, expected: np.ndarray) -> np.ndarray:
+    """The last drive fell short by more than 1 cm (odometry ``moved`` vs ``expected``, m)."""
+    return np.asarray(moved < expected - 0.01)
+
+
+def expected_drive(actions: np.ndarray, active: np.ndarray, params: AgentParams) -> np.ndarray:
+    """``(E, N)`` metres the ``(E, N, 2)`` actions should drive (0 where inactive)."""
+    return np.where(active, np.abs(np.clip(actions[..., 0], -1.0, 1.0)) * params.max_linear
+                    * params.step_seconds, 0.0)

@@ -3,8 +3,9 @@
 Each agent observes a dict: ``panorama`` (3, H, W) uint8, ``goal`` (3, G, G) uint8,
 ``pose_delta`` (3,) float32 odometry since its previous step in its previous frame
 (x forward, y left, yaw CCW), ``pose`` (3,) float32 its pose in its own start frame,
-and optionally ``depth`` (H, W) float32, ``gt_map`` (2, M, M) float32 and ``free_space``
-(D,) float32 metres (``EnvConfig.free_space``). Actions are
+and optionally ``depth`` (H, W) float32, ``gt_map`` (2, M, M) float32, ``free_space``
+(D,) float32 metres (``EnvConfig.free_space``) and ``explore_action`` (2,) float32
+(``EnvConfig.explore_action``). Actions are
 Box(-1, 1, (2,)): normalised (linear, angular) velocity; out-of-range values are
 clipped, NaN/inf raise :class:`~collavn.errors.ActionError` naming the agent.
 
@@ -62,6 +63,8 @@ class CollaVNParallelEnv(ParallelEnv):
         if cfg.free_space:
             fields["free_space"] = spaces.Box(0.0, FREE_SPACE_RANGE, (cfg.free_space,),
                                               np.float32)
+        if cfg.explore_action:
+            fields["explore_action"] = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._obs_space = spaces.Dict(fields)
         self._act_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._last: dict[str, np.ndarray] | None = None

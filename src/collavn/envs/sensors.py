@@ -12,10 +12,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from collavn.envs.config import EnvConfig
-from collavn.envs.free_space import FREE_SPACE_RANGE, free_runs
+from collavn.envs.free_space import FREE_SPACE_RANGE, ExploreRule, free_runs
 from collavn.rendering.cameras import CameraSpec
 from collavn.rendering.renderer import Renderer
 from collavn.scenes.scene import Scene
+from collavn.simulation.kinematics import AgentParams
+
+#: The rule of the ``explore_action`` sensor: the seeker's (only the most open direction).
+EXPLORE_RULE = ExploreRule(open_fraction=1.0)
 
 
 @dataclass(frozen=True)
@@ -62,6 +66,20 @@ class Sensors:
         return free_runs(depth, radius, self.config.camera_height,
                          np.deg2rad(self.panorama.fov_deg), horizon=FREE_SPACE_RANGE,
                          directions=self.config.free_space).astype(np.float32)
+
+    def explore_action(self, depth: np.ndarray, bumped: np.ndarray,
+                       params: AgentParams) -> np.ndarray:
+        """``(E, N, 2)`` the explorer's deterministic move (:data:`EXPLORE_RULE`).
+
+        From the panoramas' depth ``(E, N, H, W)`` and ``bumped (E, N)``: the last drive
+        fell short of what its action should have driven.
+        """
+        e, n, _, w = depth.shape
+        free = EXPLORE_RULE.free(depth.reshape(e * n, *depth.shape[2:]), params,
+                                 self.config.camera_height,
+                                 np.deg2rad(self.panorama.fov_deg))
+        moves = EXPLORE_RULE.moves(free.reshape(e * n, w), bumped.reshape(e * n), params)
+        return moves.reshape(e, n, 2).astype(np.float32)
 
     def goal_images(self, goal_poses: np.ndarray) -> np.ndarray:
         """Front views at goal poses ``(E, N, 3)`` (no robots in them): ``(E, N, 3, G, G)``."""

@@ -38,6 +38,7 @@ import numpy as np
 
 from collavn.datasets.episode import Episode
 from collavn.envs.config import EnvConfig, EpisodeSource
+from collavn.envs.free_space import bumped, expected_drive
 from collavn.envs.sensors import Sensors
 from collavn.errors import CollavnError
 from collavn.metrics import AgentRecord
@@ -117,6 +118,7 @@ class VectorEnv:
         self._goal_images = np.zeros((num_envs, config.num_agents, 3, config.goal_size,
                                       config.goal_size), dtype=np.uint8)
         self._last_pose = np.zeros((num_envs, config.num_agents, 3))
+        self._expected = np.zeros((num_envs, config.num_agents))  # metres the last action
 
     # ---------------------------------------------------------------- public
     def reset(self, seed: int | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -144,6 +146,7 @@ class VectorEnv:
         records: list[AgentRecord] = []
         for group in self.groups:
             envs, world = group.envs, group.world
+            self._expected[envs] = expected_drive(actions[envs], world.running, self.params)
             out = step_world(world, actions[envs], self.task)
             final_poses[envs] = world.poses()
             reward[envs], terminated[envs] = out.reward, out.terminated
@@ -179,6 +182,7 @@ class VectorEnv:
         goal_poses = np.concatenate([world.goal[local], world.goal_yaw[local][..., None]], -1)
         self._goal_images[envs[local]] = group.sensors.goal_images(goal_poses)
         self._last_pose[envs[local]] = world.poses()[local]
+        self._expected[envs[local]] = 0.0
 
     def _deliver(self, obs: dict[str, np.ndarray]) -> dict[str, Any]:
         """NumPy arrays, or torch tensors on ``config.obs_device``."""
@@ -206,6 +210,8 @@ class VectorEnv:
             obs["gt_map"] = np.zeros((e, n, 2, cfg.gt_map_size, cfg.gt_map_size), np.float32)
         if cfg.free_space:
             obs["free_space"] = np.zeros((e, n, cfg.free_space), np.float32)
+        if cfg.explore_action:
+            obs["explore_action"] = np.zeros((e, n, 2), np.float32)
         if cfg.privileged:
             obs["world_pose"] = np.zeros((e, n, 3), np.float64)
             obs["goal_position"] = np.zeros((e, n, 2), np.float64)
@@ -227,6 +233,10 @@ class VectorEnv:
                                                                 delta.shape[1:])
                                           for i in envs])
             obs["pose_delta"][envs] = delta
+            if cfg.explore_action:
+                bump = bumped(np.linalg.norm(delta[..., :2], axis=-1), self._expected[envs])
+                obs["explore_action"][envs] = sensors.explore_action(views.depth, bump,
+                                                                     world.params)
             obs["pose"][envs] = world.relative_to_start()
             obs["active"][envs] = world.running
             obs["step"][envs] = world.steps

@@ -198,6 +198,13 @@ class ModelConfig:
             vector (0 = off; a run sets ``EnvConfig.free_space`` to match): how far the
             body can drive straight each way, read off the depth panorama — the
             explorer's sense, so a policy can stop pushing into walls (not in the paper).
+        explore_prior: The actor's means are the ``explore_action`` sensor's move (the
+            goal-blind explorer's, :class:`~collavn.envs.free_space.ExploreRule`) plus
+            what the actor head adds, and that move joins the map vector (a run sets
+            ``EnvConfig.explore_action``). The head starts near zero, so an untrained
+            policy explores like the explorer; what it learns is where and how to leave
+            the search for the goal — the seeker's homing — instead of re-deriving the
+            search from depth and odometry (not in the paper; a residual policy).
         log_std_init: Initial log standard deviation of the Gaussian policy.
         action_modes: Components of the action distribution: 1 = one diagonal Gaussian
             (the paper's); K > 1 = a mixture of K Gaussians with learned weights (shared
@@ -224,6 +231,7 @@ class ModelConfig:
     critic_full_input: bool = False
     odometry_input: bool = False
     free_space_input: int = 0
+    explore_prior: bool = False
     log_std_init: float = -0.5
     action_modes: int = 1
     per_agent_params: bool = False

@@ -9,7 +9,9 @@ Observation contract (one dict of batched tensors, ``E`` envs × ``N`` agents; a
 * ``active`` bool ``(E, N)`` — still running; inactive agents neither request nor
   support, their memory is not written and their state is carried unchanged;
 * ``depth`` float ``(E, N, H, W)`` — optional, used iff ``MapConfig.use_depth``;
-* ``free_space`` float ``(E, N, D)`` metres — used iff ``ModelConfig.free_space_input``.
+* ``free_space`` float ``(E, N, D)`` metres — used iff ``ModelConfig.free_space_input``;
+* ``explore_action`` float ``(E, N, 2)`` — used iff ``ModelConfig.explore_prior``: the
+  explorer's move, added to the actor's means and appended to the map vector.
 
 ``gt_map`` is never an input: it supervises the map predictor through
 :func:`collavn.models.mapping.map_loss` on ``PolicyStep.map_logits``.
@@ -74,10 +76,12 @@ class AgentTower(FramePerception):
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__(cfg)
         emb, goal = self.embed_size, self.goal_size
-        map_dim = cfg.map.embed_dim + (3 if cfg.odometry_input else 0) + cfg.free_space_input
+        map_dim = (cfg.map.embed_dim + (3 if cfg.odometry_input else 0) + cfg.free_space_input
+                   + (ACTION_DIM if cfg.explore_prior else 0))
         self.odometry_input = cfg.odometry_input
         self.free_space_input = cfg.free_space_input
-        self.map_vector_size = map_dim  # S fed to the cores: map + odometry + free space
+        self.explore_prior = cfg.explore_prior
+        self.map_vector_size = map_dim  # S fed to the cores: map, odometry, free space, prior
         self.map_builder = MapBuilder(cfg.map, cfg.panorama_shape)
         self.map_encoder = MapEncoder(cfg.map)
         self.comm = (None if cfg.comm.variant == "none"
@@ -124,11 +128,13 @@ class AgentTower(FramePerception):
         return (self.map_builder.visual(hidden),)
 
     def embed_map(self, window: Tensor, features: Tensor, pose: Tensor, pose_delta: Tensor,
-                  first: Tensor, free_space: Tensor | None = None) -> tuple[Tensor]:
-        """The map vector ``(B, map_embed [+ 3 odometry] [+ D free space])``.
+                  first: Tensor, free_space: Tensor | None = None,
+                  prior: Tensor | None = None) -> tuple[Tensor]:
+        """The map vector ``(B, map_embed [+ 3 odometry] [+ D free space] [+ 2 prior])``.
 
         From the grid's egocentric window, the feature grid and the pose; free space in
-        metres ``(B, D)`` enters as a fraction of the sensor's range.
+        metres ``(B, D)`` enters as a fraction of the sensor's range, the explorer's
+        move ``prior (B, 2)`` as it is.
         """
         s = self.map_encoder.encode(window, self.map_encoder.feature_window(features, pose))
         if self.odometry_input:  # last step's motion, zero at an episode's first step
@@ -140,6 +146,8 @@ class AgentTower(FramePerception):
                                  f"directions; the observation has {got} "
                                  f"(EnvConfig.free_space)")
             s = torch.cat([s, free_space.to(s.dtype) / FREE_SPACE_RANGE], dim=1)
+        if self.explore_prior:
+            s = torch.cat([s, explore_prior(prior).to(s.dtype)], dim=1)
         return (s,)
 
     def core_inputs(self, o: Tensor, g: Tensor, s: Tensor, omega: Tensor
@@ -162,17 +170,31 @@ class AgentTower(FramePerception):
         return gru_step(self.actor_core, actor_in, actor_h), gru_step(self.critic_core,
                                                                       critic_in, critic_h)
 
-    def heads(self, actor_h: Tensor, critic_h: Tensor
+    def heads(self, actor_h: Tensor, critic_h: Tensor, prior: Tensor | None = None
               ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """Actor and critic heads: means, log_std, mixture logits and the value.
 
         Shapes ``(B, K, 2)``, ``(B, K, 2)``, ``(B, K)`` (zeros for K = 1) and ``(B,)``.
+        With ``explore_prior`` every mean is the explorer's move ``prior (B, 2)`` plus
+        the head's output.
         """
         mean = self.actor_mean(actor_h).unflatten(-1, (self.action_modes, ACTION_DIM))
+        if self.explore_prior:
+            mean = mean + explore_prior(prior).to(mean.dtype).unsqueeze(-2)
         logits = (mean.new_zeros(mean.shape[:-1]) if self.actor_modes is None
                   else self.actor_modes(actor_h))
         return (mean, self.log_std.expand_as(mean), logits,
                 self.critic_value(critic_h).squeeze(-1))
+
+
+def explore_prior(prior: Tensor | None) -> Tensor:
+    """The ``explore_action`` observation ``(B, 2)``, or an error naming the env setting."""
+    if prior is None or prior.shape[-1] != ACTION_DIM:
+        got = None if prior is None else tuple(prior.shape)
+        raise ValueError(f"the model adds the explorer's move to its actions "
+                         f"(ModelConfig.explore_prior); the observation's explore_action "
+                         f"is {got} (EnvConfig.explore_action)")
+    return prior
 
 
 class ActionMixture(MixtureSameFamily):
@@ -386,7 +408,8 @@ class ActorCritic(nn.Module):
 
     def replay_keys(self) -> tuple[str, ...]:
         """Observation entries :meth:`evaluate_actions` needs beside the stored percepts."""
-        keys = ["pose_delta", "active"] + (["free_space"] if self.cfg.free_space_input else [])
+        keys = (["pose_delta", "active"] + (["free_space"] if self.cfg.free_space_input else [])
+                + (["explore_action"] if self.cfg.explore_prior else []))
         if not self.frames_frozen:
             keys += ["panorama", "goal"]
         if not self.cfg.map.detach:
@@ -517,7 +540,8 @@ class ActorCritic(nn.Module):
             blended.append(f_t)
             features = kept(t, f_t, f)
         s = self._over_steps(AgentTower.embed_map, p["map_window"], torch.stack(blended),
-                             p["map_pose"], delta, starts, obs.get("free_space"))[0]
+                             p["map_pose"], delta, starts, obs.get("free_space"),
+                             obs.get("explore_action"))[0]
         # communication needs no GRU state: every step at once
         messages, omega, talk = self._communicate(p["o"], s, state, starts, active)
         actor_in, critic_in = (x.unbind(0) for x in self._over_steps(
@@ -531,7 +555,8 @@ class ActorCritic(nn.Module):
             critic_hs.append(c_new)
             actor_h, critic_h = kept(t, a_new, a_h), kept(t, c_new, c_h)
         mean, log_std, logits, value = self._over_steps(
-            AgentTower.heads, torch.stack(actor_hs), torch.stack(critic_hs))
+            AgentTower.heads, torch.stack(actor_hs), torch.stack(critic_hs),
+            obs.get("explore_action"))
         final = replace(talk, actor_h=actor_h, critic_h=critic_h, grid=grid,
                         features=features, pose=pose)
         return Unrolled(mean, log_std, logits, value, final, p, messages)

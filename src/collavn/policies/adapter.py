@@ -3,19 +3,36 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from collavn.models.config import ModelConfig
+
 #: Observation entries a policy reads (``depth`` only when the map uses it).
 POLICY_KEYS = ("panorama", "goal", "pose_delta", "active")
 
 
-def policy_keys(use_depth: bool, free_space: bool = False) -> tuple[str, ...]:
-    """Observation entries given to the model (``depth`` for the map, ``free_space``)."""
-    return (*POLICY_KEYS, *(("depth",) if use_depth else ()),
-            *(("free_space",) if free_space else ()))
+def policy_keys(cfg: ModelConfig) -> tuple[str, ...]:
+    """Observation entries a model of ``cfg`` reads.
+
+    ``depth`` for the map, ``free_space`` and ``explore_action`` where it reads those
+    sensors (:func:`env_overrides` turns them on).
+    """
+    return (*POLICY_KEYS, *(("depth",) if cfg.map.use_depth else ()),
+            *(("free_space",) if cfg.free_space_input else ()),
+            *(("explore_action",) if cfg.explore_prior else ()))
+
+
+def env_overrides(cfg: ModelConfig) -> dict[str, Any]:
+    """The ``EnvConfig`` fields a model of ``cfg`` needs: image sizes and its sensors."""
+    _, h, w = cfg.panorama_shape
+    return {"panorama_width": w, "panorama_height": h, "goal_size": cfg.goal_shape[-1],
+            **({"depth": True} if cfg.map.use_depth else {}),
+            **({"free_space": cfg.free_space_input} if cfg.free_space_input else {}),
+            **({"explore_action": True} if cfg.explore_prior else {})}
 
 
 def obs_to_torch(obs: Mapping[str, np.ndarray], keys: tuple[str, ...],

@@ -33,7 +33,7 @@ from collavn.models.communication import Message, communication_counts
 from collavn.models.config import ModelConfig, ReadoutConfig
 from collavn.models.policy import ActorCritic, action_components, pick_component
 from collavn.models.state import AgentState
-from collavn.policies.adapter import episode_start, obs_to_torch, policy_keys
+from collavn.policies.adapter import env_overrides, episode_start, obs_to_torch, policy_keys
 from collavn.policies.base import CommStats, EpisodeRandom
 
 #: Bumped when the checkpoint layout or the meaning of its weights changes.
@@ -114,6 +114,7 @@ LATER_FIELDS: dict[str, Any] = {
     "model.comm.critic_gradient": True,
     "ppo.comm_lr_scale": 1.0,
     "model.action_modes": 1,
+    "model.explore_prior": False,
 }
 
 
@@ -201,7 +202,7 @@ class CheckpointPolicy:
             raise ValueError(f"block_envs must be ≥ 1, got {block_envs}")
         self.block_envs = block_envs
         self.model = model.eval()
-        self.keys = policy_keys(model.cfg.map.use_depth, model.cfg.free_space_input > 0)
+        self.keys = policy_keys(model.cfg)
         self.stochastic = stochastic
         self.random = EpisodeRandom(seed)
         self.comm = CommStats()
@@ -287,11 +288,4 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
         detail = "; ".join(line.strip() for line in str(e).splitlines()[1:3])
         raise CheckpointError(f"checkpoint {path}: its weights do not fit its model "
                               f"config ({detail or e})") from e
-    _, h, w = model_cfg.panorama_shape
-    overrides: dict[str, Any] = {"panorama_width": w, "panorama_height": h,
-                                 "goal_size": model_cfg.goal_shape[-1]}
-    if model_cfg.map.use_depth:
-        overrides["depth"] = True
-    if model_cfg.free_space_input:
-        overrides["free_space"] = model_cfg.free_space_input
-    return CheckpointPolicy(model, stochastic, seed), overrides
+    return CheckpointPolicy(model, stochastic, seed), env_overrides(model_cfg)

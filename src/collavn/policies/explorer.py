@@ -39,7 +39,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from collavn.envs.free_space import free_runs, panorama_azimuths
+from collavn.envs.free_space import (
+    ExploreRule,
+    bumped,
+    expected_drive,
+    free_runs,
+    panorama_azimuths,
+)
 from collavn.policies.base import CommStats
 from collavn.simulation.kinematics import AgentParams
 
@@ -62,17 +68,20 @@ class ExplorerPolicy:
         band: Heights above the floor between which a hit is an obstacle (the
             navigation grid's ``step_height`` and ``agent_height``): lower is floor
             or a rug, higher (ceilings, lintels) passes over the robot.
+        deterministic: Take the open direction nearest the heading instead of a random
+            one (no generator is drawn from): the move of the ``explore_action`` sensor
+            (:meth:`~collavn.envs.free_space.ExploreRule.moves`).
     """
 
     def __init__(self, seed: int = 0, params: AgentParams | None = None, margin: float = 0.12,
                  min_advance: float = 0.25, open_fraction: float = 0.8,
                  camera_height: float = 0.9, fov_deg: float = 90.0,
-                 band: tuple[float, float] = (0.05, 1.0)) -> None:
+                 band: tuple[float, float] = (0.05, 1.0), deterministic: bool = False) -> None:
         self.seed = seed
         self.params = params or AgentParams()
-        self.margin, self.min_advance, self.open_fraction = margin, min_advance, open_fraction
+        self.rule = ExploreRule(margin, min_advance, open_fraction, band)
         self.camera_height, self.fov = camera_height, np.deg2rad(fov_deg)
-        self.band = band
+        self.deterministic = deterministic
 
     def initial_state(self, num_envs: int, num_agents: int) -> ExplorerState:
         """Fresh generators (re-seeded when each agent's episode starts), no drive yet."""
@@ -91,14 +100,16 @@ class ExplorerPolicy:
             raise KeyError("the explorer needs depth observations: EnvConfig(depth=True)")
         depth, active, step = obs["depth"], obs["active"], obs["step"]
         moved = np.linalg.norm(np.asarray(obs["pose_delta"])[..., :2], axis=-1)
-        bumped = moved < state.expected - 0.01  # fell short by more than 1 cm
+        bump = bumped(moved, state.expected) & (step > 0)
         actions = np.zeros((*active.shape, 2))
-        for e, n in zip(*np.nonzero(active), strict=True):
-            if step[e, n] == 0:
-                state.rngs[e][n] = self._episode_rng(n, obs["panorama"][e, n])
-                bumped[e, n] = False
-            free = free_runs(depth[e, n], self.radius, self.camera_height, self.fov, self.band)
-            actions[e, n] = self._decide(free, bool(bumped[e, n]), state.rngs[e][n])
+        agents = list(zip(*np.nonzero(active), strict=True))
+        if agents:
+            for e, n in agents:
+                if step[e, n] == 0:
+                    state.rngs[e][n] = self._episode_rng(n, obs["panorama"][e, n])
+            free = self.rule.free(depth[active], self.params, self.camera_height, self.fov)
+            rngs = None if self.deterministic else [state.rngs[e][n] for e, n in agents]
+            actions[active] = self.rule.moves(free, bump[active], self.params, rngs)
         self.executed(state, actions, active)
         return actions, state
 
@@ -107,38 +118,16 @@ class ExplorerPolicy:
 
         The next step compares the distance driven with what they should have driven.
         """
-        p = self.params
-        state.expected = np.where(active, np.abs(actions[..., 0]) * p.max_linear
-                                  * p.step_seconds, 0.0)
+        state.expected = expected_drive(actions, active, self.params)
 
     @property
     def radius(self) -> float:
         """Body radius plus the safety margin, metres."""
-        return self.params.radius + self.margin
+        return self.params.radius + self.rule.margin
 
     def _episode_rng(self, agent: int, panorama: np.ndarray) -> np.random.Generator:
         return np.random.default_rng([self.seed, agent,
                                       zlib.crc32(np.ascontiguousarray(panorama).tobytes())])
-
-    def _decide(self, free: np.ndarray, bumped: bool, rng: np.random.Generator) -> np.ndarray:
-        """Action ``(2,)`` from the free run ``(W,)`` of every panorama column.
-
-        ``bumped``: the last drive fell short (odometry), so something the panorama does
-        not show is ahead; turn away from straight ahead whatever the depth says.
-        """
-        p = self.params
-        width = len(free)
-        ahead = float(free[width // 2])
-        if ahead >= self.min_advance and not bumped:
-            return np.array([min(1.0, ahead / (p.max_linear * p.step_seconds)), 0.0])
-        azimuth = np.abs(panorama_azimuths(width))
-        allowed = azimuth >= np.pi / 4 if bumped else np.ones(width, bool)
-        is_open = allowed & (free >= self.open_fraction * free[allowed].max())
-        if (is_open & (azimuth <= 0.75 * np.pi)).any():  # avoid the half-turn back
-            is_open &= azimuth <= 0.75 * np.pi
-        target = float(panorama_azimuths(width)[rng.choice(np.flatnonzero(is_open))])
-        turn = target / (p.max_angular * p.step_seconds)  # azimuths lie in (−π, π]
-        return np.array([0.0, np.clip(turn, -1.0, 1.0)])
 
 
 @dataclass

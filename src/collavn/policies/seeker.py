@@ -9,8 +9,10 @@ splits the oracle's knowledge along what a learner can perceive:
 
 - **Searching** — until the goal is *in sight* (within ``sight`` metres, the straight
   segment to it on navigable cells), it explores like the goal-blind explorer, but
-  with ties broken deterministically (the most open direction, ``open_fraction =
-  1``), so every turn is a function of the depth panorama and odometry alone.
+  deterministically: the most open direction (``open_fraction = 1``), the one nearest
+  the heading on a tie, so every turn is a function of the depth panorama and
+  odometry alone — the move the ``explore_action`` sensor reports
+  (``EnvConfig.explore_action``), which a learner can therefore copy exactly.
 - **Homing** — from the first step the goal is in sight until the episode ends, it
   follows the oracle (shortest path, kinematics-checked, around teammates).
 
@@ -20,8 +22,7 @@ succeeds on ~0.59 of easy episodes. The latch (once seen, keep homing) means a
 learner with memory need not keep the goal in view.
 
 Privileged like the oracle (``EnvConfig(privileged=True)``) and needs depth
-(``EnvConfig(depth=True)``). Deterministic: no random draws (the explorer's
-generator only breaks exact ties of its free runs). When the env executes actions
+(``EnvConfig(depth=True)``). Deterministic: no random draws. When the env executes actions
 other than the seeker's (DAgger), pass them to :meth:`SeekerPolicy.executed` so the
 odometry check ("the last drive fell short") compares against what was driven.
 """
@@ -50,7 +51,7 @@ class SeekerPolicy:
         sight: The goal is in sight within this Euclidean distance, metres, when the
             straight segment to it is navigable.
         params: The robot.
-        seed: Seeds the explorer's tie-breaking generators.
+        seed: Kept for the policy interface (the seeker draws nothing at random).
     """
 
     def __init__(self, scenes: list[Scene], sight: float = 2.0,
@@ -59,7 +60,8 @@ class SeekerPolicy:
             raise CollavnError(f"the seeker's sight must be > 0 m, got {sight}")
         self.sight = float(sight)
         self.oracle = OraclePolicy(scenes, params)
-        self.explorer = ExplorerPolicy(seed, params, open_fraction=1.0)
+        self.explorer = ExplorerPolicy(seed, params, open_fraction=1.0,
+                                       deterministic=True)
 
     @property
     def scenes(self) -> list[Scene]:

@@ -104,13 +104,13 @@ class Run:
 def env_config(cfg: TrainConfig) -> EnvConfig:
     """``cfg.env`` plus what the run needs: depth and gt maps for the map, expert info.
 
-    ``depth``, ``free_space``, ``gt_map``, ``gt_map_size`` and ``privileged`` are set here,
-    from the model and the method, whatever ``cfg.env`` says.
+    ``depth``, ``free_space``, ``explore_action``, ``gt_map``, ``gt_map_size`` and
+    ``privileged`` are set here, from the model and the method, whatever ``cfg.env`` says.
     """
     m = cfg.model.map
     seeker = has_expert(cfg) and cfg.imitation.expert == "seeker"
     return replace(cfg.env, depth=m.use_depth or seeker, free_space=cfg.model.free_space_input,
-                   gt_map=cfg.mapping.enabled,
+                   explore_action=cfg.model.explore_prior, gt_map=cfg.mapping.enabled,
                    gt_map_size=round(m.local_size * m.resolution / 0.1),
                    privileged=has_expert(cfg))
 
@@ -334,7 +334,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
         The rollout (with ``last_value`` bootstrapped) and collection statistics.
     """
     cfg, model, device = run.cfg, run.model, run.device
-    keys = policy_keys(cfg.model.map.use_depth, cfg.model.free_space_input > 0)
+    keys = policy_keys(cfg.model)
     assert run.state is not None
     obs_t = obs_to_torch(run.obs, keys, device)
     rollout: Rollout | None = None
