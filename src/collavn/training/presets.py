@@ -33,7 +33,7 @@ def _cpu() -> TrainConfig:
         preset="cpu",
         env=EnvConfig(panorama_width=128, panorama_height=32, goal_size=32,
                       difficulty="easy", render_threads=1),
-        model=replace(model, map=replace(model.map, hidden=128)),
+        model=replace(model, map=replace(model.map, hidden=128), explore_prior=True),
         ppo=PPOConfig(rollout_steps=32, num_minibatches=2, update_epochs=4, lr=1e-3),
         mapping=MapTrainConfig(updates=2, batch_size=32, every=32, lr=3e-4),
         imitation=ImitationConfig(expert="seeker", dagger=True, buffer_rollouts=8, epochs=1),
@@ -87,6 +87,11 @@ CPU_REASONS: dict[str, str] = {
                      "and goal bearings, distance, free space; collavn.models.readout) join "
                      "the goal vector, so 'turn towards the path' is linear in the input: "
                      "without them il's mean action learned almost no turning",
+    "model.explore_prior": "the actor's means start from the goal-blind explorer's move (the "
+                           "explore_action sensor) and learn what to add: an untrained "
+                           "policy explores; il on val40 0.573 → 0.657 easy, 0.372 → 0.487 "
+                           "medium SR (paired +0.085 [+0.035, +0.138], +0.115 [+0.058, "
+                           "+0.170]), and 3.0 collision steps per easy agent-episode, not 11.9",
     "model.map.size": "a 96×96 map at 20 cm (19.2 m) instead of 384×384 at 10 cm",
     "model.map.resolution": "see model.map.size",
     "model.map.local_size": "32-cell local patches at 20 cm (6.4 m, as the paper's 64 at "
