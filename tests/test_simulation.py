@@ -129,3 +129,27 @@ def test_success_terminates_and_time_limit_truncates(open_room):
     np.testing.assert_allclose(world.position[0, 0], [3.4, 2.0])
     assert world.steps[0].tolist() == [2, 3]
     assert world.path_length[0, 0] == pytest.approx(1.4)
+
+
+def test_success_reward_is_paid_once_on_arrival(open_room):
+    from dataclasses import replace
+
+    from collavn.envs.config import EnvConfig
+    from collavn.errors import ConfigError
+
+    task = replace(get_task("commongoal"), success_reward=2.5)
+    world = World(open_room, 1, 2)
+    world.reset_envs([0], [_episode(open_room, [[2.0, 2.0], [2.0, 6.0]], (3.8, 2.0))])
+    out = step_world(world, np.array([[[1.0, 0.0], [0.0, 0.0]]]), task)  # 1.8 → 1.1 m
+    assert out.reward[0, 0] == pytest.approx(0.70, abs=1e-6)  # no bonus before arriving
+    d0 = world.distance[0, 0]
+    out = step_world(world, np.array([[[1.0, 0.0], [1.0, 0.0]]]), task)  # 1.1 → 0.4 m
+    assert out.terminated[0, 0] and not out.terminated[0, 1]
+    assert out.reward[0, 0] == pytest.approx(d0 - world.distance[0, 0] + 2.5, abs=1e-9)
+    assert out.reward[0, 1] < 1.0  # the agent still on its way gets no bonus
+    out = step_world(world, np.array([[[1.0, 0.0], [0.0, 0.0]]]), task)
+    assert out.reward[0, 0] == 0.0  # paid once: a finished agent earns nothing more
+    with pytest.raises(ConfigError, match=r"--env\.success-reward"):
+        EnvConfig(success_reward=float("nan"))
+    with pytest.raises(ConfigError, match=r"--env\.success-reward"):
+        EnvConfig(success_reward=-1.0)

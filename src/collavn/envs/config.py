@@ -48,6 +48,9 @@ class EnvConfig:
         odometry_noise: Std of Gaussian noise added to ``pose_delta`` (metres and
             radians); 0 = noise-free (default).
         max_steps: Episode length T.
+        success_reward: Reward added on the step an agent reaches its goal; 0 (default)
+            is the paper's reward, geodesic progress minus collisions, which pays
+            nothing for the last metre that turns "near" into success.
         difficulty: Difficulty of episodes sampled on the fly (``easy``, ``medium``,
             ``hard`` or ``mixed``); unused when episodes come from a dataset.
         backend: Renderer backend: ``embree`` (CPU) or ``warp`` (CUDA or CPU).
@@ -73,6 +76,7 @@ class EnvConfig:
     explore_action: bool = False
     odometry_noise: float = 0.0
     max_steps: int = 80
+    success_reward: float = 0.0
     difficulty: DifficultyChoice = "mixed"
     backend: Literal["embree", "warp"] = "embree"
     device: str = "cpu"
@@ -93,6 +97,7 @@ class EnvConfig:
         check_count("--render-threads", self.render_threads)
         check_number("--env.camera-height", self.camera_height)
         check_number("--env.odometry-noise", self.odometry_noise, allow_minimum=True)
+        check_number("--env.success-reward", self.success_reward, allow_minimum=True)
         if self.difficulty not in (*DIFFICULTY_BINS, "mixed"):
             raise ConfigError(f"unknown difficulty {self.difficulty!r}; expected one of "
                               f"{', '.join(DIFFICULTY_BINS)} or mixed")

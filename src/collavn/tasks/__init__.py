@@ -28,6 +28,8 @@ class TaskSpec:
         max_steps: Episode length ``T``; agents still running then are truncated.
         progress_weight: Reward per metre of geodesic progress.
         collision_penalty: Subtracted on every step with a collision.
+        success_reward: Added on the step an agent reaches its goal (0 = the paper's
+            reward, which pays only for progress).
 
     The discount γ is the learner's (``PPOConfig.gamma``), not the task's.
     """
@@ -38,6 +40,7 @@ class TaskSpec:
     max_steps: int = 80
     progress_weight: float = 1.0
     collision_penalty: float = 0.05
+    success_reward: float = 0.0
 
 
 #: A task setting's name (the keys of :data:`TASKS`).
@@ -62,6 +65,8 @@ def get_task(name: str) -> TaskSpec:
 def step_reward(prev_distance: np.ndarray, distance: np.ndarray, collided: np.ndarray,
                 running: np.ndarray, task: TaskSpec) -> np.ndarray:
     """Per-agent reward ``w·(d_{t-1} − d_t) − c·[collision]``, zero for finished agents.
+
+    :func:`step_world` adds ``TaskSpec.success_reward`` on the step an agent arrives.
 
     All arrays ``(E, N)``; distances are geodesic metres to each agent's own goal.
     """
@@ -100,6 +105,7 @@ def step_world(world: World, action: np.ndarray, task: TaskSpec) -> StepOutcome:
     reward = step_reward(motion.prev_distance, world.distance, motion.collided,
                          motion.moving, task)
     terminated = motion.moving & succeeded(world.distance, task)
+    reward = reward + task.success_reward * terminated
     truncated = motion.moving & ~terminated & (world.steps >= task.max_steps)
     world.finish(terminated, truncated)
     return StepOutcome(reward, motion.collided, terminated, truncated)
