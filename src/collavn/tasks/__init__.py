@@ -64,14 +64,15 @@ def get_task(name: str) -> TaskSpec:
 
 def step_reward(prev_distance: np.ndarray, distance: np.ndarray, collided: np.ndarray,
                 running: np.ndarray, task: TaskSpec) -> np.ndarray:
-    """Per-agent reward ``w·(d_{t-1} − d_t) − c·[collision]``, zero for finished agents.
+    """Per-agent reward ``w·(d_{t-1} − d_t) − c·[collision] + s·[arrived]``.
 
-    :func:`step_world` adds ``TaskSpec.success_reward`` on the step an agent arrives.
-
+    ``s`` is ``TaskSpec.success_reward`` (0 in the paper), paid on the step a running
+    agent comes within the success radius; finished agents get zero.
     All arrays ``(E, N)``; distances are geodesic metres to each agent's own goal.
     """
     r = task.progress_weight * (prev_distance - distance)
     r = r - task.collision_penalty * collided.astype(np.float64)
+    r = r + task.success_reward * succeeded(distance, task)
     return np.where(running, r, 0.0)
 
 
@@ -105,7 +106,6 @@ def step_world(world: World, action: np.ndarray, task: TaskSpec) -> StepOutcome:
     reward = step_reward(motion.prev_distance, world.distance, motion.collided,
                          motion.moving, task)
     terminated = motion.moving & succeeded(world.distance, task)
-    reward = reward + task.success_reward * terminated
     truncated = motion.moving & ~terminated & (world.steps >= task.max_steps)
     world.finish(terminated, truncated)
     return StepOutcome(reward, motion.collided, terminated, truncated)
