@@ -372,3 +372,32 @@ def test_sync_points_move_the_envs_to_the_next_scenes():
         sync_point(run)
         seen.append(run.env.scenes[0].name)
     assert seen == ["procedural:0", "procedural:1", "procedural:0"]
+
+
+def test_imitation_lr_decay_is_linear_in_agent_steps_and_survives_a_resume():
+    from collavn.training.trainer import learn
+
+    cfg, run, rollout = _fixed_batch("il")
+    base = cfg.imitation.lr
+    total = 4 * run.steps_per_update
+    run.cfg = dataclasses.replace(cfg.with_run(total_steps=total), imitation=dataclasses.replace(
+        cfg.imitation, lr_decay=True))
+    run.agent_steps = run.steps_per_update
+    assert learn(run, rollout)["opt/learning_rate"] == pytest.approx(0.75 * base)
+    # a resumed optimizer keeps the first rate and continues the schedule from it
+    state = run.optimizer.state_dict()
+    run.optimizer = torch.optim.Adam([p for g in run.optimizer.param_groups
+                                      for p in g["params"]], lr=123.0)
+    run.optimizer.load_state_dict(state)
+    run.agent_steps = 3 * run.steps_per_update
+    assert learn(run, rollout)["opt/learning_rate"] == pytest.approx(0.25 * base)
+    # at total_steps the rate is 0: the weights no longer move
+    run.agent_steps = total
+    before = {n: p.detach().clone() for n, p in run.model.named_parameters()}
+    assert learn(run, rollout)["opt/learning_rate"] == 0.0
+    for name, p in run.model.named_parameters():
+        assert torch.equal(p.detach(), before[name]), name
+    # without the flag the rate stays put
+    fresh = _fixed_batch("il")[1]
+    fresh.agent_steps = 3 * fresh.steps_per_update
+    assert learn(fresh, rollout)["opt/learning_rate"] == base

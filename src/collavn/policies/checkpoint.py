@@ -116,6 +116,7 @@ LATER_FIELDS: dict[str, Any] = {
     "model.action_modes": 1,
     "model.explore_prior": False,
     "env.success_reward": 0.0,
+    "imitation.lr_decay": False,
 }
 
 

@@ -205,6 +205,10 @@ class ImitationConfig:
     """Mini-batches per epoch (split over envs)."""
     lr: float = 3e-4
     """Adam learning rate."""
+    lr_decay: bool = False
+    """Decay the learning rate linearly from ``lr`` to 0 at ``--total-steps`` (by
+    agent-steps, so a seed gives the same schedule on any machine; a time budget that
+    stops the run earlier leaves it part-way)."""
 
     def __post_init__(self) -> None:
         for name in ("epochs", "buffer_rollouts", "num_minibatches"):

@@ -403,10 +403,12 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
             if run.info.enabled else None)
     if cfg.method_spec.imitation:
         run.demos.append(rollout)
+        if cfg.imitation.lr_decay:
+            scale_learning_rate(run.optimizer, 1.0 - run.agent_steps / cfg.run.total_steps)
         loss = imitation_update(run.model, run.optimizer, list(run.demos), cfg.imitation,
                                 run.generator, cfg.ppo.max_grad_norm, sync)
         run.maps.train_owed()
-        return {"loss/imitation": loss}
+        return {"loss/imitation": loss, "opt/learning_rate": run.optimizer.param_groups[0]["lr"]}
     advantages, returns = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
                                       rollout.truncated, rollout.last_value, cfg.ppo.gamma,
                                       cfg.ppo.gae_lambda)
@@ -417,6 +419,17 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
     run.maps.train_owed()  # between updates: the next rollout is scored as collected
     return {f"loss/{k}": v for k, v in stats.__dict__.items()} | {
         "loss/critic_warmup": float(warmup)}
+
+
+def scale_learning_rate(optimizer: torch.optim.Optimizer, fraction: float) -> None:
+    """Set every group's learning rate to ``fraction`` (clipped to [0, 1]) of its first.
+
+    The first rate is kept in the group (``base_lr``), so a resumed optimizer continues
+    the schedule from its checkpoint.
+    """
+    fraction = min(max(fraction, 0.0), 1.0)
+    for group in optimizer.param_groups:
+        group["lr"] = group.setdefault("base_lr", group["lr"]) * fraction
 
 
 def summary(run: Run, collect: dict[str, float], losses: dict[str, float],
