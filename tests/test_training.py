@@ -374,6 +374,18 @@ def test_sync_points_move_the_envs_to_the_next_scenes():
     assert seen == ["procedural:0", "procedural:1", "procedural:0"]
 
 
+def test_train_scenes_picks_the_first_seeds_of_the_train_range():
+    cfg = tiny_config("no-com").with_run(num_envs=1, scenes=(), train_scenes=3)
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    assert [s.name for s in run.scenes] == ["procedural:0", "procedural:1", "procedural:2"]
+    # explicit --scenes win over the count
+    run = build_run(tiny_config("no-com").with_run(train_scenes=3), DistInfo(),
+                    torch.device("cpu"))
+    assert [s.name for s in run.scenes] == ["procedural:0"]
+    with pytest.raises(ConfigError, match=r"--train-scenes must be at most 1000"):
+        RunConfig(train_scenes=1001)
+
+
 def test_imitation_lr_decay_is_linear_in_agent_steps_and_survives_a_resume():
     from collavn.training.trainer import learn
 

@@ -117,6 +117,7 @@ LATER_FIELDS: dict[str, Any] = {
     "model.explore_prior": False,
     "env.success_reward": 0.0,
     "imitation.lr_decay": False,
+    "run.train_scenes": 25,
 }
 
 

@@ -151,7 +151,7 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     """
     apply_threads(cfg.run.torch_threads)
     cfg, encoder = resolve_encoder(cfg)
-    specs = list(cfg.run.scenes) or scene_specs("train")
+    specs = list(cfg.run.scenes) or scene_specs("train", (cfg.run.train_scenes, 0, 0))
     scenes = [load_scene(cfg.run.load.spec(s)) for s in distributed.shard(specs, info)]
     env = VectorEnv(scene_window(scenes, cfg.run.num_envs, 0), cfg.run.num_envs,
                     env_config(cfg), seed=info.seed(cfg.run.seed))
