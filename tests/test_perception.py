@@ -335,3 +335,52 @@ def test_a_signal_ends_pretraining_with_the_encoder_written(tmp_path, monkeypatc
     assert saved["steps"] == 3
     assert "val/path_bearing_accuracy" in load_encoder(tmp_path / "enc" / "encoder.pt").metrics
     assert signal.getsignal(sig) is before  # the run's handler is gone again
+
+
+def test_the_weight_average_is_what_pretraining_scores_and_saves(l_corridor, tmp_path,
+                                                                 monkeypatch):
+    """``perception.ema``: after n steps every averaged weight is the bias-corrected
+    EMA Σ (1 − d) d^(n−i) w_i / (1 − d^n) of the weights after each step, and the raw
+    weights are scored beside it."""
+    torch.set_num_threads(1)
+    cfg, _ = _tiny_pretrain(l_corridor)
+    d = 0.9
+    pcfg = dataclasses.replace(cfg, perception=dataclasses.replace(cfg.perception, ema=d))
+    _, base = _tiny_pretrain(l_corridor)
+    trainer = Pretrainer(pcfg, base.train, base.val)
+    history = []
+    for _ in range(6):
+        trainer.step()
+        history.append({k: w.clone() for k, w in trainer.frames.state_dict().items()})
+    n = len(history)
+    expected = {k: sum((1 - d) * d ** (n - 1 - i) * h[k] for i, h in enumerate(history))
+                / (1 - d ** n) for k in history[0]}
+    frames, _ = trainer.modules_for()
+    assert frames is not trainer.frames
+    for k, a in frames.state_dict().items():
+        torch.testing.assert_close(a, expected[k], rtol=1e-5, atol=1e-6)
+    assert any(not torch.equal(a, trainer.frames.state_dict()[k])
+               for k, a in frames.state_dict().items())
+    averaged, raw = trainer.evaluate(pairs=32), trainer.evaluate(32, False, "val_raw")
+    assert averaged["val/loss"] != raw["val_raw/loss"]
+    with pytest.raises(ConfigError, match=r"perception\.ema"):
+        PerceptionConfig(ema=1.0)
+    # A whole run writes the average into encoder.pt and logs the raw scores beside it.
+    import collavn.perception.pretrain as pretrain_module
+
+    made = []
+    monkeypatch.setattr(pretrain_module, "Pretrainer",
+                        lambda *a: made.append(Pretrainer(*a)) or made[-1])
+    run = dataclasses.replace(pcfg, out=str(tmp_path / "enc"), scenes=("procedural:0",),
+                              val_scenes=("procedural:1",), eval_interval=1000,
+                              perception=dataclasses.replace(pcfg.perception, steps=4))
+    result = pretrain_module.pretrain(run)
+    saved = load_encoder(result.path).state_dict
+    average, raw = made[0].modules_for()[0], made[0].frames
+    assert all(torch.equal(saved[k], v) for k, v in average.frame_state_dict().items())
+    assert not all(torch.equal(saved[k], v) for k, v in raw.frame_state_dict().items())
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    logged = EventAccumulator(str(tmp_path / "enc"))
+    logged.Reload()
+    assert {"val/loss", "val_raw/loss"} <= set(logged.Tags()["scalars"])

@@ -60,11 +60,22 @@ class PerceptionConfig:
     """Width of the pair head (discarded after pretraining)."""
     mirror: bool = True
     """Also train on mirror images (panorama and goal flipped, bearings mirrored)."""
+    ema: float = 0.999
+    """Decay of a (bias-corrected) exponential moving average of the weights and
+    BatchNorm statistics; 0 = off. The held-out scores and ``encoder.pt`` are the
+    average's; the trained weights' held-out scores are logged beside them
+    (``val_raw/*``). At a constant learning rate the weights wander from step to step
+    (the held-out path accuracy at easy distances of one run moved between 0.47 and 0.60
+    over 2,000 steps); the average of the last ~1,000 steps does not. Measured, same run
+    (2026-12-05, ``--preset cpu``, 1 thread): held-out loss 4.365 against 4.431 at 9,000
+    steps, 4.347 against 4.519 at 12,500, lower at every evaluation from step 3,500 on."""
 
     def __post_init__(self) -> None:
         if min(self.train_scenes, self.frames_per_scene, self.goals_per_scene,
                self.val_frames_per_scene, self.bins, self.steps, self.batch_size) < 1:
             raise ConfigError("scenes, frames, goals, bins, steps and batch size must be ≥ 1")
+        if not 0.0 <= self.ema < 1.0:
+            raise ConfigError(f"--perception.ema must be in [0, 1), got {self.ema}")
         if not 0.0 <= self.own_goal_fraction <= 1.0:
             raise ConfigError(f"own_goal_fraction must be in [0, 1], got "
                               f"{self.own_goal_fraction}")

@@ -13,11 +13,14 @@ between two views is left out: odometry is an input and the map integrates it.
 The loop: render and label the frames once (train and val scenes), then
 ``steps`` Adam steps on random pairs with exact rotation/mirror augmentation; TensorBoard
 scalars, held-out accuracy per label every ``eval_interval`` steps, and ``encoder.pt``
-written atomically at the end (also when the time budget runs out).
+written atomically at the end (also when the time budget runs out). With
+``perception.ema`` an exponential moving average of the weights is what is scored and
+saved.
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import time
 from collections.abc import Callable
@@ -26,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch import nn
 
 from collavn.datasets.episode import DIFFICULTY_BINS, in_bin
 from collavn.models.frames import FramePerception
@@ -52,6 +56,42 @@ class PretrainResult:
     path: Path
 
 
+class WeightAverage:
+    """An exponential moving average of a module's floating-point state, bias-corrected.
+
+    After ``n`` updates with decay ``d`` every entry is ``Σ_i (1 − d) d^(n−i) w_i / (1 −
+    d^n)``: the weights of the last ~1/(1 − d) steps, with no pull towards the
+    initialisation (a short run is averaged over its own steps). Integer buffers are
+    copied. :meth:`module` is a copy of the module holding the average.
+    """
+
+    def __init__(self, module: nn.Module, decay: float) -> None:
+        self.decay, self.updates = decay, 0
+        self.copy = copy.deepcopy(module)
+        state = module.state_dict()
+        self.sums = {k: torch.zeros_like(v) for k, v in state.items() if v.is_floating_point()}
+        self.others = {k: v.clone() for k, v in state.items() if k not in self.sums}
+
+    @torch.no_grad()
+    def update(self, module: nn.Module) -> None:
+        """Fold in the module's current state."""
+        self.updates += 1
+        for k, v in module.state_dict().items():
+            if k in self.sums:
+                self.sums[k].lerp_(v, 1.0 - self.decay)
+            else:
+                self.others[k].copy_(v)
+
+    @torch.no_grad()
+    def module(self) -> nn.Module:
+        """The copy, loaded with the average (the trained state before any update)."""
+        if self.updates:
+            scale = 1.0 / (1.0 - self.decay ** self.updates)
+            self.copy.load_state_dict({**self.others,
+                                       **{k: v * scale for k, v in self.sums.items()}})
+        return self.copy
+
+
 class Pretrainer:
     """The frame perception, its heads and optimizer, over a train and a val frame set."""
 
@@ -68,6 +108,20 @@ class Pretrainer:
         params = [*self.frames.parameters(), *([] if own else self.heads.parameters())]
         self.optimizer = torch.optim.Adam(params, lr=p.lr)
         self.rng = np.random.default_rng(cfg.seed + 1)
+        # (A readout of the model's own is both entries: copies keep it one module.)
+        self.net = nn.ModuleDict({"frames": self.frames, "heads": self.heads})
+        self.average = WeightAverage(self.net, p.ema) if p.ema > 0 else None
+
+    def modules_for(self, averaged: bool = True) -> tuple[FramePerception, nn.Module]:
+        """The frame perception and heads to score and save.
+
+        The weight average's when ``perception.ema`` is on and ``averaged``, else the
+        trained weights.
+        """
+        net = self.average.module() if averaged and self.average is not None else self.net
+        frames, heads = net["frames"], net["heads"]
+        assert isinstance(frames, FramePerception)
+        return frames, heads
 
     def loss(self, batch: dict[str, np.ndarray]) -> tuple[torch.Tensor, dict[str, float]]:
         """Total loss of a batch and its parts."""
@@ -80,26 +134,33 @@ class Pretrainer:
 
     def step(self) -> dict[str, float]:
         """One Adam step on a fresh augmented batch; returns the losses."""
-        self.frames.train()
+        self.net.train()
         batch = sample_batch(self.train, self.cfg.perception.batch_size, self.cfg.perception,
                              self.rng)
         total, parts = self.loss(batch)
         self.optimizer.zero_grad()
         total.backward()
         self.optimizer.step()
+        if self.average is not None:
+            self.average.update(self.net)
         return {"loss/total": float(total.detach()), **{f"loss/{k}": v
                                                          for k, v in parts.items()}}
 
     @torch.no_grad()
-    def evaluate(self, pairs: int = 4096) -> dict[str, float]:
+    def evaluate(self, pairs: int = 4096, averaged: bool = True,
+                 prefix: str = "val") -> dict[str, float]:
         """Held-out accuracy and loss per label on ``pairs`` val pairs (fixed draw).
 
         The pair labels are also scored per episode difficulty — the pairs whose geodesic
         distance lies in that bin (``val/path_bearing_accuracy_easy``, …): a perception
         that is right far from the goal (where the way out of the room is the answer) can
-        still be wrong at the distances an episode is decided.
+        still be wrong at the distances an episode is decided. ``averaged``: score the
+        weight average (``perception.ema``) rather than the trained weights; ``prefix``
+        names the scalars.
         """
-        self.frames.eval()
+        frames, heads = self.modules_for(averaged)
+        frames.eval()
+        heads.eval()
         p = self.cfg.perception
         rng = np.random.default_rng(12345)
         right: dict[str, list[float]] = {k: [] for k in LABELS}
@@ -108,7 +169,7 @@ class Pretrainer:
         for _ in range(max(1, pairs // p.batch_size)):
             batch = sample_batch(self.val, p.batch_size, p, rng, augment=False)
             t = {k: torch.as_tensor(v) for k, v in batch.items()}
-            pred = self.heads(*self.frames.see_pair(t["panorama"], t["goal"]))
+            pred = heads(*frames.see_pair(t["panorama"], t["goal"]))
             target = targets(t, p.bins, p.max_distance)
             loss.append(float(torch.stack(list(losses(pred, target).values())).sum()))
             for k, v in accuracies(pred, target).items():
@@ -120,9 +181,9 @@ class Pretrainer:
                 for k, c in counts.items():
                     c[0] += int(hits[k][mask].sum())
                     c[1] += n
-        return {"val/loss": float(np.mean(loss)),
-                **{f"val/{k}_accuracy": float(np.nanmean(v)) for k, v in right.items()},
-                **{f"val/{k}_accuracy_{band}": hit / n for band, counts in bands.items()
+        return {f"{prefix}/loss": float(np.mean(loss)),
+                **{f"{prefix}/{k}_accuracy": float(np.nanmean(v)) for k, v in right.items()},
+                **{f"{prefix}/{k}_accuracy_{band}": hit / n for band, counts in bands.items()
                    for k, (hit, n) in counts.items() if n}}
 
 
@@ -180,6 +241,8 @@ def pretrain(cfg: PretrainConfig, stop: Callable[[], bool] | None = None) -> Pre
             if step % cfg.eval_interval == 0 or step == cfg.perception.steps or over:
                 metrics = trainer.evaluate()
                 scalars.update(metrics)
+                if trainer.average is not None:  # the raw weights, for comparison
+                    scalars.update(trainer.evaluate(averaged=False, prefix="val_raw"))
             if step % cfg.log_interval == 0 or "val/loss" in scalars:
                 for k, v in scalars.items():
                     writer.add_scalar(k, v, step)
@@ -190,7 +253,7 @@ def pretrain(cfg: PretrainConfig, stop: Callable[[], bool] | None = None) -> Pre
             if over:
                 break
     writer.close()
-    path = save_encoder(out / ENCODER_FILE, trainer.frames,
+    path = save_encoder(out / ENCODER_FILE, trainer.modules_for()[0],
                         encoder_spec(cfg.model, cfg.env.camera_height), metrics,
                         cfg.to_dict(), step)
     return PretrainResult(step, metrics, path)
