@@ -119,6 +119,7 @@ class Pretrainer:
         trained weights.
         """
         net = self.average.module() if averaged and self.average is not None else self.net
+        assert isinstance(net, nn.ModuleDict)
         frames, heads = net["frames"], net["heads"]
         assert isinstance(frames, FramePerception)
         return frames, heads
