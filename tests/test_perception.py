@@ -343,10 +343,9 @@ def test_the_weight_average_is_what_pretraining_scores_and_saves(l_corridor, tmp
     EMA Σ (1 − d) d^(n−i) w_i / (1 − d^n) of the weights after each step, and the raw
     weights are scored beside it."""
     torch.set_num_threads(1)
-    cfg, _ = _tiny_pretrain(l_corridor)
+    cfg, base = _tiny_pretrain(l_corridor)
     d = 0.9
     pcfg = dataclasses.replace(cfg, perception=dataclasses.replace(cfg.perception, ema=d))
-    _, base = _tiny_pretrain(l_corridor)
     trainer = Pretrainer(pcfg, base.train, base.val)
     history = []
     for _ in range(6):

@@ -98,6 +98,7 @@ def _probes(root: Path) -> list[tuple[list[str], str]]:
         (["train", "--time-budget-minutes", "-1"], "--time-budget-minutes must be"),
         (["train", "--num-envs", "0"], "--num-envs must be"),
         (["train", "--train-scenes", "0"], "--train-scenes must be"),
+        (["pretrain", "--perception.ema", "1"], "--perception.ema must be in [0, 1)"),
         (["train", "--agents", "0"], "--agents must be"),
         (["train", "--seed", "-1"], "--seed must be"),
         (["train", "--out", "/proc/foo"], "cannot write to --out /proc/foo"),
