@@ -6,7 +6,7 @@ import pytest
 from collavn.cli import main
 from collavn.datasets.generator import sample_episodes
 from collavn.envs import EnvConfig
-from collavn.evaluation.runner import evaluate, read_records, write_records
+from collavn.evaluation.runner import evaluate, first_sightings, read_records, write_records
 from collavn.metrics import compute_metrics
 from collavn.policies import OraclePolicy, RandomPolicy
 
@@ -43,6 +43,36 @@ def test_oracle_reaches_easy_goals_and_random_does_much_worse(door_scene, easy_e
         assert r.success == (r.final_distance <= 1.0)
 
 
+def test_first_sighting_needs_the_goal_near_and_the_straight_way_free(door_scene):
+    goal = np.array([[6.0, 1.5]])
+    path = np.array([[4.0, 1.5, 0.0],   # 2.0 m away, but the wall is in between
+                     [4.5, 3.5, 0.0],   # 2.5 m: too far
+                     [5.5, 3.5, 0.0],   # in the door, 2.06 m: too far
+                     [5.6, 3.0, 0.0],   # 1.55 m, the straight way free: in sight
+                     [6.0, 2.0, 0.0]])[:, None]
+    assert first_sightings(door_scene, path, goal, [4]) == [3]
+    assert first_sightings(door_scene, path, goal, [2]) == [-1]  # it stopped before
+    assert first_sightings(door_scene, path, goal, [4], sight=1.0) == [4]
+    assert first_sightings(door_scene, path[:1], goal, [0], sight=2.5) == [-1]  # wall
+
+
+def test_evaluation_records_when_each_agent_first_sighted_its_goal(door_scene,
+                                                                   easy_episodes):
+    from dataclasses import replace
+
+    oracle = evaluate(OraclePolicy([door_scene]), door_scene, easy_episodes,
+                      replace(SMALL, privileged=True), keep_trajectories=len(easy_episodes))
+    by_id = {t.episode_id: t for t in oracle.trajectories}
+    for r in oracle.records:
+        assert r.sighted_step is not None and r.sighted_step <= r.steps
+        traj = by_id[r.episode_id]
+        want = first_sightings(door_scene, traj.poses[:, r.agent:r.agent + 1],
+                               traj.goals[r.agent:r.agent + 1], [r.steps])
+        assert [r.sighted_step] == want
+        if r.success:
+            assert r.sighted_step >= 0
+
+
 def test_oracle_without_privileged_observations_explains_itself(door_scene, easy_episodes):
     with pytest.raises(KeyError, match="privileged"):
         evaluate(OraclePolicy([door_scene]), door_scene, easy_episodes[:1], SMALL)
@@ -75,6 +105,8 @@ def test_cli_chain_generate_evaluate_viz(door_scene, tmp_path, capsys):
     assert table["oracle"]["metrics"]["overall"]["SR"] >= 0.85
     assert len(read_records(out / "records.jsonl")) == 60
     assert (out / "metrics.tex").read_text().count("oracle") == 1
+    assert table["oracle"]["search"]["overall"]["homing"] >= 0.85
+    assert "SR once sighted (homing)" in (out / "metrics.md").read_text()
     assert main(["viz", str(out), "--out", str(tmp_path / "viz"), "--panorama-width",
                  "32"]) == 0
     assert (tmp_path / "viz" / "trajectories.png").stat().st_size > 10_000

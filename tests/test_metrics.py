@@ -13,6 +13,8 @@ from collavn.metrics import (
     compute_metrics,
     distance_to_success,
     metrics_table,
+    search_metrics,
+    search_table,
     spl,
     ssr,
     success_rate,
@@ -96,3 +98,22 @@ def test_single_method_table():
     table = metrics_table(RECORDS, max_steps=80)
     assert len(table.rows) == 1 and table.rows[0].method == ""
     assert table.rows[0].groups["overall"]["SSR"] == pytest.approx(2.5)
+
+
+def test_search_and_homing_split_by_hand():
+    from dataclasses import replace
+
+    sighted = [3, -1, 0, 12, -1, None]  # per RECORDS row; None: not measured
+    recs = [replace(r, sighted_step=s) for r, s in zip(RECORDS, sighted, strict=True)]
+    m = search_metrics(recs)
+    # measured: rows 0-4; sighted: rows 0, 2, 3 (τ = 1, 1, 1); never: rows 1, 4 (τ = 0, 0)
+    assert m["sighted"] == pytest.approx(3 / 5)
+    assert m["homing"] == pytest.approx(1.0)
+    assert m["unsighted SR"] == pytest.approx(0.0)
+    recs[0] = replace(recs[0], success=False)
+    assert search_metrics(recs)["homing"] == pytest.approx(2 / 3)
+    assert all(math.isnan(v) for v in search_metrics(RECORDS).values())  # none measured
+    table = search_table({"m": recs})
+    assert "| m | easy | 2 | 0.500 | 0.000 | 0.000 |" in table  # rows 0 (now failed), 1
+    assert "| m | hard | 1 | 0.000 | – | 0.000 |" in table  # row 5 is unmeasured
+    assert "| m | overall | 5 | 0.600 | 0.667 | 0.000 |" in table

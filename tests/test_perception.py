@@ -103,7 +103,10 @@ def test_pretraining_lowers_the_loss_on_a_tiny_set(l_corridor, model):
 
 
 def test_held_out_accuracy_is_scored_per_episode_difficulty(l_corridor, monkeypatch):
-    """A perception right only from 3 m on scores 0 at easy distances, 1 at medium ones."""
+    """A perception right only from 3 m on scores 0 at easy distances, 1 at medium ones.
+
+    One right only from 1.5 m on is partly right in the homing band (1–2 m).
+    """
     import collavn.perception.pretrain as pretrain_module
 
     torch.set_num_threads(1)
@@ -119,6 +122,15 @@ def test_held_out_accuracy_is_scored_per_episode_difficulty(l_corridor, monkeypa
         assert metrics[f"val/{label}_accuracy_easy"] == 0.0
         assert metrics[f"val/{label}_accuracy_medium"] == 1.0
     assert "val/free_space_accuracy_easy" not in metrics  # not a pair label
+    assert metrics["val/path_bearing_accuracy_homing"] == 0.0
+
+    def right_from_1_5m(pred, target):
+        return {k: torch.expm1(target["distance"]) >= 1.5 for k in pretrain_module.PAIR_LABELS}
+
+    monkeypatch.setattr(pretrain_module, "pair_hits", right_from_1_5m)
+    metrics = trainer.evaluate(pairs=256)
+    assert 0.0 < metrics["val/path_bearing_accuracy_homing"] < 1.0
+    assert metrics["val/path_bearing_accuracy_easy"] == 1.0
 
 
 def _encoder_file(tmp_path, model=TINY_MODEL, env=None):

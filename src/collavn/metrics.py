@@ -44,6 +44,12 @@ class AgentRecord:
         start_distance: ``l_g``: geodesic start-to-goal distance in metres.
         final_distance: Geodesic distance to the goal at the end, in metres.
         collisions: Steps on which the agent collided (scene or another agent).
+        sighted_step: The first step at which the goal was *in sight* — within
+            :data:`SIGHT_DISTANCE` metres, the straight segment to it on navigable cells
+            (0: at the start; ``-1``: never; ``None``: not measured, e.g. records
+            written before 2026-12-06). It splits an agent's episode into *search*
+            (finding the goal) and *homing* (reaching a goal in sight): see
+            :func:`search_metrics`.
     """
 
     episode_id: str
@@ -55,6 +61,13 @@ class AgentRecord:
     start_distance: float
     final_distance: float
     collisions: int = 0
+    sighted_step: int | None = None
+
+
+#: An agent has its goal *in sight* within this Euclidean distance (metres) when the
+#: straight segment to it is navigable: where ``il``'s expert (the seeker) stops
+#: searching and heads for the goal.
+SIGHT_DISTANCE = 2.0
 
 
 def _column(records: Sequence[AgentRecord], name: str) -> np.ndarray:
@@ -115,6 +128,41 @@ def compute_metrics(records: Sequence[AgentRecord], max_steps: int = 80,
             "DTS": distance_to_success(records, success_distance),
             "SPL": spl(records),
             "SSR": ssr(records, max_steps)}
+
+
+def search_metrics(records: Sequence[AgentRecord]) -> dict[str, float]:
+    """Search and homing: where a policy loses its failed episodes.
+
+    ``sighted`` — the fraction of agents that ever had their goal in sight (the search
+    found it); ``homing`` — SR of those agents (a goal in sight became a success);
+    ``unsighted SR`` — SR of the rest. Only records with a measured ``sighted_step``
+    count; every value is NaN without one. For scale: the goal-blind explorer homes on
+    ~0.68 of easy val agents that sight their goal (by chance), the seeker (which
+    switches to the shortest path at the first sighting) on ~0.99.
+    """
+    known = [r for r in records if r.sighted_step is not None]
+    seen = [r for r in known if r.sighted_step is not None and r.sighted_step >= 0]
+    unseen = [r for r in known if r.sighted_step is not None and r.sighted_step < 0]
+    return {"sighted": len(seen) / len(known) if known else math.nan,
+            "homing": success_rate(seen),
+            "unsighted SR": success_rate(unseen)}
+
+
+def search_table(records: Mapping[str, Sequence[AgentRecord]]) -> str:
+    """Markdown: per method and difficulty, :func:`search_metrics` with agent counts."""
+    lines = ["| method | difficulty | agents | goal sighted | SR once sighted (homing) "
+             "| SR never sighted |", "|---|---|---:|---:|---:|---:|"]
+    for method, recs in records.items():
+        for g in (*DIFFICULTIES, "overall"):
+            sel = [r for r in recs if (g == "overall" or r.difficulty == g)
+                   and r.sighted_step is not None]
+            if not sel:
+                continue
+            m = search_metrics(sel)
+            cells = ["–" if math.isnan(m[k]) else f"{m[k]:.3f}"
+                     for k in ("sighted", "homing", "unsighted SR")]
+            lines.append(f"| {method} | {g} | {len(sel)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 @dataclass(frozen=True)

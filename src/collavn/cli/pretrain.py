@@ -57,19 +57,19 @@ def main(args: Sequence[str], prog: str = "collavn pretrain") -> int:
     notice = f"finishing the current step, then scoring the held-out frames and writing {encoder}"
     with StopRequest(encoder, 1, notice) as stop:
         result = pretrain(config, lambda: stop.requested)
-    from collavn.datasets.episode import DIFFICULTY_BINS
+    from collavn.perception.pretrain import ACCURACY_BANDS
 
     def band(key: str) -> str:
-        return next((b for b in DIFFICULTY_BINS if key.endswith(f"_{b}")), "")
+        return next((b for b in ACCURACY_BANDS if key.endswith(f"_{b}")), "")
 
     shown = ", ".join(f"{k.removeprefix('val/')} {v:.3f}" for k, v in result.metrics.items()
                       if not band(k))
     print(f"{result.steps} steps; held out: {shown}; encoder {result.path}")
-    for b in DIFFICULTY_BINS:  # the pair labels at the distances of each difficulty
+    for b, (lo, hi) in ACCURACY_BANDS.items():  # the pair labels per distance band
         parts = [f"{k.removeprefix('val/').removesuffix(f'_accuracy_{b}')} {v:.3f}"
                  for k, v in result.metrics.items() if band(k) == b]
         if parts:
-            print(f"  goal at {b} distances: {', '.join(parts)}")
+            print(f"  goal {lo:g}–{hi:g} m away ({b}): {', '.join(parts)}")
     if stop.signum is None:
         return 0
     print(f"stopped by {signal.Signals(stop.signum).name} after {result.steps} steps; "

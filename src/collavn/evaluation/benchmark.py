@@ -9,6 +9,7 @@ brings its own image sizes.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, cast
@@ -24,7 +25,14 @@ from collavn.evaluation.runner import (
     write_records,
     write_trajectories,
 )
-from collavn.metrics import MetricsTable, metrics_table
+from collavn.metrics import (
+    DIFFICULTIES,
+    AgentRecord,
+    MetricsTable,
+    metrics_table,
+    search_metrics,
+    search_table,
+)
 from collavn.policies import make_policy
 from collavn.scenes import load_scene
 from collavn.tasks import TaskName
@@ -129,15 +137,31 @@ class Report:
     table: MetricsTable
     communication: dict[str, dict[str, float]]
 
+    search: dict[str, list[AgentRecord]] = field(default_factory=dict)
+    """Per method, the records :func:`~collavn.metrics.search_table` splits into search
+    and homing (empty: not shown)."""
+
     def to_markdown(self) -> str:
-        """The metrics table, then one line of communication per method."""
-        return self.table.to_markdown() + "\n\n" + communication_table(self.communication)
+        """The metrics table, one line of communication per method, search and homing."""
+        text = self.table.to_markdown() + "\n\n" + communication_table(self.communication)
+        if any(r.sighted_step is not None for recs in self.search.values() for r in recs):
+            text += "\n\n" + search_table(self.search)
+        return text
 
     def to_json(self) -> dict[str, Any]:
-        """``{method: {"metrics", "counts", "communication"}}``, for ``--json``."""
+        """``{method: {"metrics", "counts", "communication", "search"}}``, for ``--json``.
+
+        ``search``: :func:`~collavn.metrics.search_metrics` per difficulty and overall.
+        """
         return {row.method: {"metrics": row.groups, "counts": row.counts,
-                             "communication": self.communication.get(row.method, {})}
+                             "communication": self.communication.get(row.method, {}),
+                             "search": _search_groups(self.search.get(row.method, []))}
                 for row in self.table.rows}
+
+
+def _search_groups(records: Sequence[AgentRecord]) -> dict[str, dict[str, float]]:
+    return {g: search_metrics([r for r in records if g == "overall" or r.difficulty == g])
+            for g in (*DIFFICULTIES, "overall")}
 
 
 def communication_table(rates: dict[str, dict[str, float]]) -> str:
@@ -160,7 +184,8 @@ def write_results(out: Path, results: dict[str, EvaluationResult]) -> Report:
     write_trajectories(out / "trajectories.jsonl",
                        [t for r in results.values() for t in r.trajectories])
     report = Report(metrics_table({k: r.records for k, r in results.items()}),
-                    {k: r.communication.rates() for k, r in results.items()})
+                    {k: r.communication.rates() for k, r in results.items()},
+                    {k: r.records for k, r in results.items()})
     (out / "metrics.md").write_text(report.to_markdown() + "\n")
     (out / "metrics.tex").write_text(report.table.to_latex() + "\n")
     (out / "metrics.csv").write_text(report.table.to_csv())

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -13,8 +13,9 @@ import numpy as np
 from collavn.datasets.episode import Episode
 from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv
-from collavn.metrics import AgentRecord
+from collavn.metrics import SIGHT_DISTANCE, AgentRecord
 from collavn.policies.base import CommStats, Policy
+from collavn.policies.oracle import in_view
 from collavn.scenes.scene import Scene
 from collavn.scenes.spec import SceneSpec
 
@@ -70,6 +71,27 @@ class EvaluationResult:
         self.communication.add(other.communication)
 
 
+def first_sightings(scene: Scene, poses: np.ndarray, goals: np.ndarray, steps: Sequence[int],
+                    sight: float = SIGHT_DISTANCE) -> list[int]:
+    """Per agent, the first step its goal was in sight (``-1``: never).
+
+    Args:
+        scene: The episode's scene.
+        poses: ``(T + 1, N, 3)`` poses, row ``k`` after step ``k`` (row 0: the start).
+        goals: ``(N, 2)`` goal positions.
+        steps: Per agent, the steps it ran (later rows are not looked at: a finished
+            agent no longer searches).
+        sight: In sight within this Euclidean distance, the straight segment navigable
+            (:func:`~collavn.policies.oracle.in_view`; the seeker's switch to homing).
+    """
+    out = []
+    for n, goal in enumerate(np.asarray(goals, dtype=np.float64)):
+        xy = poses[:steps[n] + 1, n, :2]
+        near = np.flatnonzero(np.linalg.norm(xy - goal, axis=1) <= sight)
+        out.append(next((int(k) for k in near if in_view(scene, xy[k], goal)), -1))
+    return out
+
+
 def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: EnvConfig,
              num_envs: int = 4, seed: int = 0, keep_trajectories: int = 0,
              on_episode: Callable[[int], None] | None = None) -> EvaluationResult:
@@ -113,6 +135,12 @@ def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: 
             e = int(k)
             ep = before[e]
             assert ep is not None
+            if ep.episode_id in fresh:
+                recs = sorted(done[ep.episode_id], key=lambda r: r.agent)
+                seen = first_sightings(scene, np.stack(paths[e]), ep.agent_goals,
+                                       [r.steps for r in recs])
+                done[ep.episode_id] = [replace(r, sighted_step=s)
+                                       for r, s in zip(recs, seen, strict=True)]
             if ep.episode_id in fresh and ep.episode_id in wanted:
                 success = np.array([r.success for r in sorted(done[ep.episode_id],
                                                               key=lambda r: r.agent)])
