@@ -288,3 +288,29 @@ def test_a_cpu_preset_model_gives_an_env_the_same_result_in_any_slot_of_a_block(
         assert torch.equal(a2.dist.mean[0], b2.dist.mean[slot])
         assert torch.equal(a2.value[0], b2.value[slot])
         assert torch.equal(a2.message.omega[0], b2.message.omega[slot])
+
+
+def test_trajectory_maps_mark_where_each_agent_first_sighted_its_goal(door_scene):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from collavn.evaluation.runner import Trajectory
+    from collavn.viz.trajectories import draw_trajectory
+
+    # agent 0 walks through the door to the goal (in sight at step 3); agent 1 stays
+    # behind the wall, 2 m from the goal but never in sight
+    a0 = [[4.0, 1.5], [4.5, 3.5], [5.5, 3.5], [5.6, 3.0], [6.0, 2.0]]
+    a1 = [[4.0, 1.5]] * 5
+    poses = np.zeros((5, 2, 3))
+    poses[:, 0, :2], poses[:, 1, :2] = a0, a1
+    traj = Trajectory("e", door_scene.spec, poses, np.array([[6.0, 1.5]] * 2),
+                      np.zeros(2), np.array([True, False]))
+    fig, ax = plt.subplots()
+    draw_trajectory(ax, door_scene, traj)
+    diamonds = [line for line in ax.lines if line.get_marker() == "D"]
+    assert len(diamonds) == 1
+    np.testing.assert_allclose(diamonds[0].get_xydata(), [[5.6, 3.0]])
+    assert diamonds[0].get_label() == "goal first in sight"
+    plt.close(fig)

@@ -54,7 +54,7 @@ def draw_scene_map(ax: Any, scene: Scene, title: str | None = None) -> None:
     x, y = left + 0.04 * (right - left), bottom + 0.04 * (right - left)
     ax.plot([x, x + length], [y, y], color="black", linewidth=3, solid_capstyle="butt")
     ax.text(x + length / 2, y + 0.015 * (right - left), f"{length:g} m", ha="center",
-            va="bottom", fontsize=8)
+            va="bottom", fontsize=8, clip_on=True)  # a zoomed view hides bar and label
 
 
 def save_scene_map(scene: Scene, path: str | Path, title: str | None = None) -> Path:

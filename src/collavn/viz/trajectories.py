@@ -1,8 +1,10 @@
 """Trajectory pictures as in the paper's appendix, and animated episode GIFs.
 
 Maps: the scene's navigation map, starts as blue circles, goals as orange circles
-(with the goal view direction), one coloured path per agent, a star where an agent
-succeeded and a cross where it did not.
+(with the goal view direction, the success radius shaded and the sight distance
+dashed), one coloured path per agent, a diamond where the agent first had its goal in
+sight (:func:`~collavn.evaluation.runner.first_sightings`: search ends, homing begins),
+a star where an agent succeeded and a cross where it did not.
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from collavn.evaluation.runner import Trajectory
+from collavn.evaluation.runner import Trajectory, first_sightings
+from collavn.metrics import SIGHT_DISTANCE
 from collavn.rendering.frames import AGENT_COLOURS, views_strip
 from collavn.scenes.scene import Scene
 from collavn.viz.topdown import draw_scene_map
@@ -35,6 +38,7 @@ def draw_trajectory(ax: Any, scene: Scene, traj: Trajectory, title: str | None =
     radius = scene.nav.config.agent_radius
     for goal, yaw in zip(np.unique(traj.goals, axis=0), _goal_yaws(traj), strict=True):
         ax.add_patch(_circle(goal, 1.0, GOAL_COLOUR, alpha=0.18))  # success radius
+        ax.add_patch(_ring(goal, SIGHT_DISTANCE, GOAL_COLOUR))  # in sight within
         ax.add_patch(_circle(goal, radius * 1.4, GOAL_COLOUR))
         ax.arrow(goal[0], goal[1], 0.5 * np.cos(yaw), 0.5 * np.sin(yaw), width=0.03,
                  color=GOAL_COLOUR, length_includes_head=True)
@@ -50,11 +54,18 @@ def draw_agents(ax: Any, scene: Scene, traj: Trajectory, upto: int | None) -> li
     """Each agent's path (to step ``upto``, or all) and its end marker or body."""
     radius = scene.nav.config.agent_radius
     last = len(traj.poses) - 1 if upto is None else upto
+    agents = traj.poses.shape[1]
+    sighted = first_sightings(scene, traj.poses, traj.goals, [len(traj.poses) - 1] * agents)
     artists: list[Any] = []
-    for n in range(traj.poses.shape[1]):
+    for n in range(agents):
         colour = AGENT_COLOURS[n % len(AGENT_COLOURS)] / 255.0
         xy = traj.poses[: last + 1, n, :2]
         artists += ax.plot(xy[:, 0], xy[:, 1], color=colour, linewidth=2, label=f"agent_{n}")
+        if 0 <= sighted[n] <= last:
+            first = all(not 0 <= s <= last for s in sighted[:n])  # one legend entry
+            artists += ax.plot(*xy[sighted[n]], marker="D", markersize=7, color=colour,
+                               markeredgecolor="black", linestyle="none",
+                               label="goal first in sight" if first else None)
         if upto is None:
             marker = "*" if traj.success[n] else "X"
             artists += ax.plot(xy[-1, 0], xy[-1, 1], marker=marker,
@@ -148,6 +159,13 @@ def _circle(xy: np.ndarray, r: float, colour: Any, alpha: float = 1.0) -> Any:
     from matplotlib.patches import Circle
 
     return Circle((float(xy[0]), float(xy[1])), r, color=colour, alpha=alpha, zorder=3)
+
+
+def _ring(xy: np.ndarray, r: float, colour: Any) -> Any:
+    from matplotlib.patches import Circle
+
+    return Circle((float(xy[0]), float(xy[1])), r, edgecolor=colour, fill=False,
+                  linestyle="--", linewidth=1.0, zorder=3)
 
 
 def _zoom(ax: Any, scene: Scene, traj: Trajectory, margin: float = 2.0) -> None:
