@@ -107,12 +107,15 @@ def test_search_and_homing_split_by_hand():
     recs = [replace(r, sighted_step=s) for r, s in zip(RECORDS, sighted, strict=True)]
     m = search_metrics(recs)
     # measured: rows 0-4; sighted: rows 0, 2, 3 (τ = 1, 1, 1); never: rows 1, 4 (τ = 0, 0)
+    assert m["agents"] == 5
     assert m["sighted"] == pytest.approx(3 / 5)
     assert m["homing"] == pytest.approx(1.0)
     assert m["unsighted SR"] == pytest.approx(0.0)
     recs[0] = replace(recs[0], success=False)
     assert search_metrics(recs)["homing"] == pytest.approx(2 / 3)
-    assert all(math.isnan(v) for v in search_metrics(RECORDS).values())  # none measured
+    unmeasured = search_metrics(RECORDS)  # none measured
+    assert unmeasured.pop("agents") == 0
+    assert all(math.isnan(v) for v in unmeasured.values())
     table = search_table({"m": recs})
     assert "| m | easy | 2 | 0.500 | 0.000 | 0.000 |" in table  # rows 0 (now failed), 1
     assert "| m | hard | 1 | 0.000 | – | 0.000 |" in table  # row 5 is unmeasured

@@ -133,35 +133,41 @@ def compute_metrics(records: Sequence[AgentRecord], max_steps: int = 80,
 def search_metrics(records: Sequence[AgentRecord]) -> dict[str, float]:
     """Search and homing: where a policy loses its failed episodes.
 
-    ``sighted`` — the fraction of agents that ever had their goal in sight (the search
+    ``agents`` — records with a measured ``sighted_step`` (only those count);
+    ``sighted`` — the fraction of them that ever had their goal in sight (the search
     found it); ``homing`` — SR of those agents (a goal in sight became a success);
-    ``unsighted SR`` — SR of the rest. Only records with a measured ``sighted_step``
-    count; every value is NaN without one. For scale: the goal-blind explorer homes on
-    ~0.68 of easy val agents that sight their goal (by chance), the seeker (which
-    switches to the shortest path at the first sighting) on ~0.99.
+    ``unsighted SR`` — SR of the rest. NaN where a group is empty. For scale: the
+    goal-blind explorer homes on ~0.68 of easy val agents that sight their goal (by
+    chance), the seeker (which switches to the shortest path at the first sighting) on
+    ~0.98.
     """
-    known = [r for r in records if r.sighted_step is not None]
-    seen = [r for r in known if r.sighted_step is not None and r.sighted_step >= 0]
-    unseen = [r for r in known if r.sighted_step is not None and r.sighted_step < 0]
-    return {"sighted": len(seen) / len(known) if known else math.nan,
+    known = [(r, r.sighted_step) for r in records if r.sighted_step is not None]
+    seen = [r for r, step in known if step >= 0]
+    unseen = [r for r, step in known if step < 0]
+    return {"agents": float(len(known)),
+            "sighted": len(seen) / len(known) if known else math.nan,
             "homing": success_rate(seen),
             "unsighted SR": success_rate(unseen)}
 
 
+def search_groups(records: Sequence[AgentRecord]) -> dict[str, dict[str, float]]:
+    """:func:`search_metrics` per difficulty and ``overall``."""
+    return {g: search_metrics([r for r in records if g == "overall" or r.difficulty == g])
+            for g in (*DIFFICULTIES, "overall")}
+
+
 def search_table(records: Mapping[str, Sequence[AgentRecord]]) -> str:
-    """Markdown: per method and difficulty, :func:`search_metrics` with agent counts."""
+    """Markdown: per method and difficulty (with measured agents), :func:`search_metrics`."""
     lines = ["| method | difficulty | agents | goal sighted | SR once sighted (homing) "
              "| SR never sighted |", "|---|---|---:|---:|---:|---:|"]
     for method, recs in records.items():
-        for g in (*DIFFICULTIES, "overall"):
-            sel = [r for r in recs if (g == "overall" or r.difficulty == g)
-                   and r.sighted_step is not None]
-            if not sel:
+        for g, m in search_groups(recs).items():
+            if not m["agents"]:
                 continue
-            m = search_metrics(sel)
             cells = ["–" if math.isnan(m[k]) else f"{m[k]:.3f}"
                      for k in ("sighted", "homing", "unsighted SR")]
-            lines.append(f"| {method} | {g} | {len(sel)} | " + " | ".join(cells) + " |")
+            lines.append(f"| {method} | {g} | {int(m['agents'])} | " + " | ".join(cells)
+                         + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -9,7 +9,6 @@ brings its own image sizes.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, cast
@@ -26,11 +25,10 @@ from collavn.evaluation.runner import (
     write_trajectories,
 )
 from collavn.metrics import (
-    DIFFICULTIES,
     AgentRecord,
     MetricsTable,
     metrics_table,
-    search_metrics,
+    search_groups,
     search_table,
 )
 from collavn.policies import make_policy
@@ -151,17 +149,12 @@ class Report:
     def to_json(self) -> dict[str, Any]:
         """``{method: {"metrics", "counts", "communication", "search"}}``, for ``--json``.
 
-        ``search``: :func:`~collavn.metrics.search_metrics` per difficulty and overall.
+        ``search``: :func:`~collavn.metrics.search_groups` (per difficulty and overall).
         """
         return {row.method: {"metrics": row.groups, "counts": row.counts,
                              "communication": self.communication.get(row.method, {}),
-                             "search": _search_groups(self.search.get(row.method, []))}
+                             "search": search_groups(self.search.get(row.method, []))}
                 for row in self.table.rows}
-
-
-def _search_groups(records: Sequence[AgentRecord]) -> dict[str, dict[str, float]]:
-    return {g: search_metrics([r for r in records if g == "overall" or r.difficulty == g])
-            for g in (*DIFFICULTIES, "overall")}
 
 
 def communication_table(rates: dict[str, dict[str, float]]) -> str:

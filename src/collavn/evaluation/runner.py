@@ -15,7 +15,7 @@ from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv
 from collavn.metrics import SIGHT_DISTANCE, AgentRecord
 from collavn.policies.base import CommStats, Policy
-from collavn.policies.oracle import in_view
+from collavn.policies.oracle import in_sight
 from collavn.scenes.scene import Scene
 from collavn.scenes.spec import SceneSpec
 
@@ -81,15 +81,11 @@ def first_sightings(scene: Scene, poses: np.ndarray, goals: np.ndarray, steps: S
         goals: ``(N, 2)`` goal positions.
         steps: Per agent, the steps it ran (later rows are not looked at: a finished
             agent no longer searches).
-        sight: In sight within this Euclidean distance, the straight segment navigable
-            (:func:`~collavn.policies.oracle.in_view`; the seeker's switch to homing).
+        sight: :func:`~collavn.policies.oracle.in_sight`'s distance (the seeker's).
     """
-    out = []
-    for n, goal in enumerate(np.asarray(goals, dtype=np.float64)):
-        xy = poses[:steps[n] + 1, n, :2]
-        near = np.flatnonzero(np.linalg.norm(xy - goal, axis=1) <= sight)
-        out.append(next((int(k) for k in near if in_view(scene, xy[k], goal)), -1))
-    return out
+    return [next((k for k in range(steps[n] + 1) if in_sight(scene, poses[k, n, :2], goal,
+                                                             sight)), -1)
+            for n, goal in enumerate(np.asarray(goals, dtype=np.float64))]
 
 
 def evaluate(policy: Policy, scene: Scene, episodes: Sequence[Episode], config: EnvConfig,

@@ -122,3 +122,11 @@ def in_view(scene: Scene, a: np.ndarray, b: np.ndarray) -> bool:
     k = max(2, int(np.linalg.norm(b - a) / 0.05) + 1)
     points = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)
     return bool(scene.nav.is_navigable(points).all())
+
+
+def in_sight(scene: Scene, position: np.ndarray, goal: np.ndarray, sight: float) -> bool:
+    """The goal is *in sight*: within ``sight`` metres and the straight way there navigable.
+
+    The seeker's switch from searching to homing, and the evaluation's ``sighted_step``.
+    """
+    return bool(np.linalg.norm(goal - position) <= sight and in_view(scene, position, goal))

@@ -34,9 +34,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from collavn.errors import CollavnError
+from collavn.metrics import SIGHT_DISTANCE
 from collavn.policies.base import CommStats
 from collavn.policies.explorer import ExplorerPolicy, ExplorerState
-from collavn.policies.oracle import OraclePolicy, in_view
+from collavn.policies.oracle import OraclePolicy, in_sight
 from collavn.scenes.scene import Scene
 from collavn.simulation.kinematics import AgentParams
 
@@ -54,7 +55,7 @@ class SeekerPolicy:
         seed: Kept for the policy interface (the seeker draws nothing at random).
     """
 
-    def __init__(self, scenes: list[Scene], sight: float = 2.0,
+    def __init__(self, scenes: list[Scene], sight: float = SIGHT_DISTANCE,
                  params: AgentParams | None = None, seed: int = 0) -> None:
         if not sight > 0:
             raise CollavnError(f"the seeker's sight must be > 0 m, got {sight}")
@@ -89,7 +90,7 @@ class SeekerPolicy:
         for e, n in zip(*np.nonzero(active), strict=True):
             scene = self.scenes[int(obs["scene_index"][e])]
             if not state.seen[e, n]:
-                state.seen[e, n] = self.in_sight(scene, pose[e, n, :2], goal[e, n])
+                state.seen[e, n] = in_sight(scene, pose[e, n, :2], goal[e, n], self.sight)
             if state.seen[e, n]:
                 try:
                     actions[e, n] = self.oracle.act_one(scene, pose[e], n, goal[e, n])
@@ -98,10 +99,6 @@ class SeekerPolicy:
         self.executed(state, actions, active)
         return actions, state
 
-    def in_sight(self, scene: Scene, position: np.ndarray, goal: np.ndarray) -> bool:
-        """Near enough, and the straight way there is navigable."""
-        return bool(np.linalg.norm(goal - position) <= self.sight
-                    and in_view(scene, position, goal))
 
     def executed(self, state: SeekerState, actions: np.ndarray, active: np.ndarray) -> None:
         """Record the ``(E, N, 2)`` actions the env was given (the odometry check's base)."""

@@ -32,6 +32,7 @@ from collavn import configs
 from collavn.configs import check_count, check_number
 from collavn.envs.config import EnvConfig
 from collavn.errors import ConfigError
+from collavn.metrics import SIGHT_DISTANCE
 from collavn.models.config import CommVariant, ModelConfig
 from collavn.scenes.spec import LoadOptions
 from collavn.scenes.splits import SPLIT_STRIDE
@@ -187,7 +188,7 @@ class ImitationConfig:
     path from the first step (the paper's baseline); ``seeker``, the explorer's moves
     (deterministic) until the goal is in sight, then the oracle's — every move inferable
     from what the agent sees (see :mod:`collavn.policies.seeker`)."""
-    sight: float = 2.0
+    sight: float = SIGHT_DISTANCE
     """``seeker`` only: the goal is in sight within this many metres along a navigable
     straight line."""
     dagger: bool = False

@@ -50,14 +50,18 @@ def draw_trajectory(ax: Any, scene: Scene, traj: Trajectory, title: str | None =
     return artists
 
 
-def draw_agents(ax: Any, scene: Scene, traj: Trajectory, upto: int | None) -> list[Any]:
-    """Each agent's path (to step ``upto``, or all) and its end marker or body."""
+def draw_agents(ax: Any, scene: Scene, traj: Trajectory, upto: int | None,
+                sighted: Sequence[int] | None = None) -> list[Any]:
+    """Each agent's path (to step ``upto``, or all), first sighting, end marker or body.
+
+    ``sighted``: :func:`sightings` of ``traj`` if already known (an animation draws every
+    frame with the same).
+    """
     radius = scene.nav.config.agent_radius
     last = len(traj.poses) - 1 if upto is None else upto
-    agents = traj.poses.shape[1]
-    sighted = first_sightings(scene, traj.poses, traj.goals, [len(traj.poses) - 1] * agents)
+    sighted = sightings(scene, traj) if sighted is None else sighted
     artists: list[Any] = []
-    for n in range(agents):
+    for n in range(traj.poses.shape[1]):
         colour = AGENT_COLOURS[n % len(AGENT_COLOURS)] / 255.0
         xy = traj.poses[: last + 1, n, :2]
         artists += ax.plot(xy[:, 0], xy[:, 1], color=colour, linewidth=2, label=f"agent_{n}")
@@ -78,6 +82,12 @@ def draw_agents(ax: Any, scene: Scene, traj: Trajectory, upto: int | None) -> li
                                     1.6 * radius * np.sin(yaw), width=0.04, color="black",
                                     length_includes_head=True, zorder=4))
     return artists
+
+
+def sightings(scene: Scene, traj: Trajectory) -> list[int]:
+    """Per agent, the first step of ``traj`` with its goal in sight (``-1``: never)."""
+    return first_sightings(scene, traj.poses, traj.goals,
+                           [len(traj.poses) - 1] * traj.poses.shape[1])
 
 
 def save_trajectory_maps(scene: Scene, trajectories: Sequence[Trajectory], path: str | Path,
@@ -128,9 +138,10 @@ def episode_frames(scene: Scene, traj: Trajectory, panoramas: np.ndarray, goals:
     fig.canvas.draw()
     background = fig.canvas.copy_from_bbox(fig.bbox)  # type: ignore[attr-defined]
     frames = []
+    sighted = sightings(scene, traj)
     for t in range(len(traj.poses)):
         fig.canvas.restore_region(background)  # type: ignore[attr-defined]
-        for artist in draw_agents(ax, scene, traj, upto=t):
+        for artist in draw_agents(ax, scene, traj, upto=t, sighted=sighted):
             ax.draw_artist(artist)
             artist.remove()
         top = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()  # type: ignore[attr-defined]
