@@ -349,6 +349,37 @@ def test_a_signal_ends_pretraining_with_the_encoder_written(tmp_path, monkeypatc
     assert signal.getsignal(sig) is before  # the run's handler is gone again
 
 
+def test_the_held_out_frames_do_not_change_with_the_training_draw():
+    """Encoders trained nearer their goals, or on more scenes, are scored on the same
+    held-out frames and pairs: the val draw has its own random stream and the default
+    ``near_distance`` / ``own_goal_fraction``, while the train draw follows the config."""
+    from rich.progress import Progress
+
+    from collavn.perception.pretrain import held_out_config, load_frames
+
+    cfg = tiny_config("no-com")
+    p = PerceptionConfig(frames_per_scene=6, goals_per_scene=2, val_frames_per_scene=4,
+                         bins=8, batch_size=8, hidden=32)
+    near = dataclasses.replace(p, near_distance=2.0, own_goal_fraction=1.0)
+    sets = {}
+    for name, perception in (("default", p), ("near", near)):
+        pcfg = PretrainConfig(env=cfg.env, model=cfg.model, perception=perception,
+                              progress=False, scenes=("procedural:0",),
+                              val_scenes=("procedural:1",))
+        with Progress(disable=True) as progress:
+            sets[name] = load_frames(pcfg, progress)
+    (train_a, val_a), (train_b, val_b) = sets["default"], sets["near"]
+    assert np.array_equal(val_a.panoramas, val_b.panoramas)
+    assert np.array_equal(val_a.distance, val_b.distance)
+    assert not np.array_equal(train_a.panoramas, train_b.panoramas)
+    # the near draw keeps its panoramas within 2 m of the goal it was sampled near
+    own = train_b.distance[np.arange(len(train_b.distance)), train_b.own]
+    assert (own <= 2.0 + 1e-6).all() and own.max() < train_a.distance.max()
+    held = held_out_config(near)
+    assert (held.near_distance, held.own_goal_fraction) == (10.0, 0.5)
+    assert held.frames_per_scene == near.frames_per_scene
+
+
 def test_the_weight_average_is_what_pretraining_scores_and_saves(l_corridor, tmp_path,
                                                                  monkeypatch):
     """``perception.ema``: after n steps every averaged weight is the bias-corrected

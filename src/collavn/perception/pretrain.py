@@ -24,7 +24,7 @@ import copy
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +35,7 @@ from collavn.datasets.episode import DIFFICULTY_BINS, in_bin
 from collavn.metrics import SIGHT_DISTANCE
 from collavn.models.frames import FramePerception
 from collavn.models.readout import PerceptionReadout
-from collavn.perception.config import PretrainConfig
+from collavn.perception.config import PerceptionConfig, PretrainConfig
 from collavn.perception.encoder import encoder_spec, save_encoder
 from collavn.perception.frames import FrameSet, render_frames, sample_batch
 from collavn.perception.heads import LABELS, accuracies, losses, pair_hits, targets
@@ -169,8 +169,9 @@ class Pretrainer:
     @torch.no_grad()
     def evaluate(self, pairs: int = 4096, averaged: bool = True,
                  prefix: str = "val") -> dict[str, float]:
-        """Held-out accuracy and loss per label on ``pairs`` val pairs (fixed draw).
+        """Held-out accuracy and loss per label on ``pairs`` val pairs.
 
+        The pairs are a fixed draw with :func:`held_out_config`'s settings.
         The pair labels are also scored per band of :data:`ACCURACY_BANDS` — the pairs
         whose geodesic distance lies in an episode difficulty's bin
         (``val/path_bearing_accuracy_easy``, …) or in the homing band
@@ -183,7 +184,7 @@ class Pretrainer:
         frames, heads = self.modules_for(averaged)
         frames.eval()
         heads.eval()
-        p = self.cfg.perception
+        p = held_out_config(self.cfg.perception)
         rng = np.random.default_rng(12345)
         right: dict[str, list[float]] = {k: [] for k in LABELS}
         bands = {b: {k: [0, 0] for k in PAIR_LABELS} for b in ACCURACY_BANDS}
@@ -209,26 +210,44 @@ class Pretrainer:
                    for k, (hit, n) in counts.items() if n}}
 
 
+def held_out_config(p: PerceptionConfig) -> PerceptionConfig:
+    """``p`` with the held-out draw's settings.
+
+    Those are the defaults of ``near_distance`` and ``own_goal_fraction``, whatever the
+    training draw uses.
+    The held-out frames and pairs are the ruler every encoder is scored with; a run that
+    trains nearer its goals (``--perception.near-distance 5``) must still be scored on
+    the same kind of pairs as one that does not, or its accuracies are not comparable.
+    """
+    return replace(p, near_distance=PerceptionConfig.near_distance,
+                   own_goal_fraction=PerceptionConfig.own_goal_fraction)
+
+
 def load_frames(cfg: PretrainConfig, progress: object) -> tuple[FrameSet, FrameSet]:
-    """Render and label the train and val frame sets."""
+    """Render and label the train and val frame sets.
+
+    Each set has its own random stream from ``cfg.seed``, and the val set is drawn with
+    :func:`held_out_config`: the held-out frames do not change with the training draw's
+    settings (how many training scenes, how near the goals).
+    """
     from rich.progress import Progress, TaskID
 
     assert isinstance(progress, Progress)
     p = cfg.perception
-    rng = np.random.default_rng(cfg.seed)
-    out = []
     train_specs = scene_specs("train", (p.train_scenes, 0, 0))
-    for specs, count, name in ((cfg.scenes or tuple(train_specs),
-                                p.frames_per_scene, "train"),
-                               (cfg.val_scenes or tuple(scene_specs("val")),
-                                p.val_frames_per_scene, "val")):
+    out = []
+    for specs, count, name, draw in ((cfg.scenes or tuple(train_specs),
+                                      p.frames_per_scene, "train", p),
+                                     (cfg.val_scenes or tuple(scene_specs("val")),
+                                      p.val_frames_per_scene, "val", held_out_config(p))):
         task = progress.add_task(f"rendering {name} frames", total=len(specs))
         scenes = [load_scene(s) for s in specs]
 
         def advance(k: int, task: TaskID = task) -> None:
             progress.advance(task, k)
 
-        out.append(render_frames(scenes, cfg.env, p, count, rng, advance))
+        rng = np.random.default_rng([cfg.seed, len(out)])
+        out.append(render_frames(scenes, cfg.env, draw, count, rng, advance))
     return out[0], out[1]
 
 
