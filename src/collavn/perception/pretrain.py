@@ -171,15 +171,14 @@ class Pretrainer:
                  prefix: str = "val") -> dict[str, float]:
         """Held-out accuracy and loss per label on ``pairs`` val pairs.
 
-        The pairs are a fixed draw with :func:`held_out_config`'s settings.
-        The pair labels are also scored per band of :data:`ACCURACY_BANDS` — the pairs
-        whose geodesic distance lies in an episode difficulty's bin
+        The pairs are a fixed draw with :func:`held_out_config`'s settings. The pair
+        labels are also scored per band of :data:`ACCURACY_BANDS` — the pairs whose
+        geodesic distance lies in an episode difficulty's bin
         (``val/path_bearing_accuracy_easy``, …) or in the homing band
         (``…_accuracy_homing``): a perception that is right far from the goal (where the
         way out of the room is the answer) can still be wrong at the distances an episode
-        is decided. ``averaged``: score the
-        weight average (``perception.ema``) rather than the trained weights; ``prefix``
-        names the scalars.
+        is decided. ``averaged``: score the weight average (``perception.ema``) rather
+        than the trained weights; ``prefix`` names the scalars.
         """
         frames, heads = self.modules_for(averaged)
         frames.eval()
@@ -214,10 +213,10 @@ def held_out_config(p: PerceptionConfig) -> PerceptionConfig:
     """``p`` with the held-out draw's settings.
 
     Those are the defaults of ``near_distance`` and ``own_goal_fraction``, whatever the
-    training draw uses.
-    The held-out frames and pairs are the ruler every encoder is scored with; a run that
-    trains nearer its goals (``--perception.near-distance 5``) must still be scored on
-    the same kind of pairs as one that does not, or its accuracies are not comparable.
+    training draw uses. The held-out frames and pairs are the ruler every encoder is
+    scored with: a run that trains nearer its goals (``--perception.near-distance 5``)
+    must be scored on the same kind of pairs as one that does not, or its accuracies
+    are not comparable.
     """
     return replace(p, near_distance=PerceptionConfig.near_distance,
                    own_goal_fraction=PerceptionConfig.own_goal_fraction)
@@ -235,7 +234,7 @@ def load_frames(cfg: PretrainConfig, progress: object) -> tuple[FrameSet, FrameS
     assert isinstance(progress, Progress)
     p = cfg.perception
     train_specs = scene_specs("train", (p.train_scenes, 0, 0))
-    out = []
+    out: list[FrameSet] = []
     for specs, count, name, draw in ((cfg.scenes or tuple(train_specs),
                                       p.frames_per_scene, "train", p),
                                      (cfg.val_scenes or tuple(scene_specs("val")),
