@@ -27,6 +27,7 @@ W = 64
 #: TINY_MODEL with the rotation-equivariant readout.
 RING_MODEL = dataclasses.replace(TINY_MODEL, readout=dataclasses.replace(TINY_MODEL.readout,
                                                                          ring=True))
+DEPTH_MODEL = dataclasses.replace(TINY_MODEL, frame_depth=True)
 
 
 def circular_gap(a, b, width=W):
@@ -68,8 +69,10 @@ def _tiny_pretrain(scene, model=TINY_MODEL) -> tuple[PretrainConfig, Pretrainer]
                          bins=8, batch_size=16, lr=3e-3, hidden=32, steps=80)
     pcfg = PretrainConfig(env=cfg.env, model=cfg.model, perception=p, progress=False)
     rng = np.random.default_rng(0)
-    train = render_frames([scene], cfg.env, p, p.frames_per_scene, rng)
-    val = render_frames([scene], cfg.env, p, p.val_frames_per_scene, rng)
+    train = render_frames([scene], cfg.env, p, p.frames_per_scene, rng,
+                          depth=model.frame_depth)
+    val = render_frames([scene], cfg.env, p, p.val_frames_per_scene, rng,
+                        depth=model.frame_depth)
     return pcfg, Pretrainer(pcfg, train, val)
 
 
@@ -84,12 +87,14 @@ def test_frames_are_labelled_by_the_scene(l_corridor):
     assert ((batch["path_column"] >= 0) & (batch["path_column"] < 64)).all()
 
 
-@pytest.mark.parametrize("model", [TINY_MODEL, RING_MODEL], ids=["pooled", "ring"])
+@pytest.mark.parametrize("model", [TINY_MODEL, RING_MODEL, DEPTH_MODEL],
+                         ids=["pooled", "ring", "depth"])
 def test_pretraining_lowers_the_loss_on_a_tiny_set(l_corridor, model):
     torch.set_num_threads(1)
     cfg, trainer = _tiny_pretrain(l_corridor, model)
     fixed = sample_batch(trainer.train, 64, cfg.perception, np.random.default_rng(3),
                          augment=False)
+    assert ("depth" in fixed) == model.frame_depth
     with torch.no_grad():
         before = float(trainer.loss(fixed)[0])
     for _ in range(cfg.perception.steps):
@@ -100,6 +105,41 @@ def test_pretraining_lowers_the_loss_on_a_tiny_set(l_corridor, model):
     metrics = trainer.evaluate(pairs=32)
     for label in ("path_bearing", "goal_bearing", "distance", "free_space"):
         assert 0.0 <= metrics[f"val/{label}_accuracy"] <= 1.0
+
+
+def test_depth_turns_with_the_panorama_and_is_read_only_when_asked(l_corridor):
+    """``model.frame_depth``: a batch's depth is rolled and mirrored with its panorama;
+    the panorama encoder reads it (other depth, other ``o``) and names the missing
+    sensor when there is none; the goal matcher and the goal embedding ignore it."""
+    torch.set_num_threads(1)
+    cfg, trainer = _tiny_pretrain(l_corridor, DEPTH_MODEL)
+    frames = trainer.train
+    assert frames.depths is not None and frames.depths.shape == (24, 16, 64)
+    assert np.isfinite(frames.depths).all() and frames.depths.max() > 1.0
+    # a depth that *is* the panorama's red channel must still be after the augmentation
+    red = dataclasses.replace(frames, depths=frames.panoramas[:, 0].astype(np.float16))
+    batch = sample_batch(red, 64, cfg.perception, np.random.default_rng(5))
+    assert np.array_equal(batch["depth"], batch["panorama"][:, 0].astype(np.float32))
+    pan, goal = (torch.as_tensor(batch[k][:4]) for k in ("panorama", "goal"))
+    depth = torch.as_tensor(sample_batch(frames, 4, cfg.perception,
+                                         np.random.default_rng(5), False)["depth"])
+    assert cfg.model.frame_depth
+    net = FramePerception(cfg.model).eval()
+    plain = FramePerception(dataclasses.replace(cfg.model, frame_depth=False)).eval()
+    with torch.no_grad():
+        o, g = net.see(pan, goal, depth)
+        o2, g2 = net.see(pan, goal, depth + 1.0)
+        plain_o, _ = plain.see(pan, goal)
+    assert not torch.allclose(o, o2)
+    # the goal embedding and the match vector do not read depth (the readout reads o)
+    assert torch.equal(g[:, :net.pair_goal_size], g2[:, :net.pair_goal_size])
+    assert o.shape == plain_o.shape
+    with pytest.raises(ValueError, match=r"ModelConfig\.frame_depth.*EnvConfig\(depth=True\)"):
+        net.see(pan, goal)
+    from collavn.policies.adapter import env_overrides, policy_keys
+
+    assert "depth" in policy_keys(DEPTH_MODEL) and "depth" not in policy_keys(TINY_MODEL)
+    assert env_overrides(DEPTH_MODEL)["depth"] is True
 
 
 def test_held_out_accuracy_is_scored_per_episode_difficulty(l_corridor, monkeypatch):
@@ -145,11 +185,14 @@ def _encoder_file(tmp_path, model=TINY_MODEL, env=None):
     return path, frames
 
 
-@pytest.mark.parametrize("method", ["ours", "il"])
-def test_a_frozen_encoder_runs_once_per_step_and_stays_bit_identical(tmp_path, method):
+@pytest.mark.parametrize("method,model", [("ours", TINY_MODEL), ("il", TINY_MODEL),
+                                          ("ours", DEPTH_MODEL)],
+                         ids=["ours", "il", "ours-depth"])
+def test_a_frozen_encoder_runs_once_per_step_and_stays_bit_identical(tmp_path, method,
+                                                                     model):
     torch.set_num_threads(1)
-    path, frames = _encoder_file(tmp_path)
-    cfg = tiny_config(method, rollout_steps=5).with_run(encoder=str(path))
+    path, frames = _encoder_file(tmp_path, model)
+    cfg = tiny_config(method, rollout_steps=5, model=model).with_run(encoder=str(path))
     run = build_run(cfg, DistInfo(), torch.device("cpu"))
     assert run.cfg.run.encoder_sha256 == load_encoder(path).sha256  # resume checks it
     tower = run.model.towers[0]
@@ -163,6 +206,7 @@ def test_a_frozen_encoder_runs_once_per_step_and_stays_bit_identical(tmp_path, m
     rollout, _ = collect_rollout(run)
     # the images are not kept: the update reads the stored features only
     assert "panorama" not in rollout.obs and "goal" not in rollout.obs
+    assert "depth" not in rollout.obs  # the frame perception's depth is in its features
     assert {"o", "g", "map_hidden", *MAP_TRACK} == set(rollout.percepts)
     if method == "ours":
         # recomputed from the stored features, PPO's first-epoch log-probs are exact
@@ -195,6 +239,11 @@ def test_a_run_refuses_an_encoder_made_for_other_image_sizes(tmp_path):
                   torch.device("cpu"))
     with pytest.raises(CheckpointError, match="checksum"):
         build_run(tiny_config("no-com").with_run(encoder=str(path), encoder_sha256="ab" * 32),
+                  DistInfo(), torch.device("cpu"))
+    # an encoder pretrained without depth cannot feed a model whose encoder reads it
+    path, _ = _encoder_file(tmp_path)
+    with pytest.raises(CheckpointError, match=r"frame_depth: encoder null vs run true"):
+        build_run(tiny_config("no-com", model=DEPTH_MODEL).with_run(encoder=str(path)),
                   DistInfo(), torch.device("cpu"))
     # an encoder pretrained without the readout heads cannot feed a model that reads them
     path, _ = _encoder_file(tmp_path, dataclasses.replace(TINY_MODEL, readout=ReadoutConfig()))

@@ -205,6 +205,13 @@ class ModelConfig:
             policy explores like the explorer; what it learns is where and how to leave
             the search for the goal — the seeker's homing — instead of re-deriving the
             search from depth and odometry (not in the paper; a residual policy).
+        frame_depth: The panorama encoder (frame perception) also reads the depth
+            panorama, as a 4th channel scaled like the map's (``map.max_depth`` → 1).
+            Where the goal is 1–2 m away, which way it lies is a question of geometry
+            (how far the goal view's surfaces are from where the goal camera stood, and
+            from here), which 32-pixel-high RGB answers poorly; the depth sensor is
+            there anyway (the map is supervised by it). Not in the paper; the goal image
+            stays RGB, as the task gives it.
         log_std_init: Initial log standard deviation of the Gaussian policy.
         action_modes: Components of the action distribution: 1 = one diagonal Gaussian
             (the paper's); K > 1 = a mixture of K Gaussians with learned weights (shared
@@ -232,6 +239,7 @@ class ModelConfig:
     odometry_input: bool = False
     free_space_input: int = 0
     explore_prior: bool = False
+    frame_depth: bool = False
     log_std_init: float = -0.5
     action_modes: int = 1
     per_agent_params: bool = False
@@ -240,6 +248,11 @@ class ModelConfig:
     comm: CommConfig = field(default_factory=CommConfig)
     goal_match: MatchConfig = field(default_factory=MatchConfig)
     readout: ReadoutConfig = field(default_factory=ReadoutConfig)
+
+    @property
+    def reads_depth(self) -> bool:
+        """The model reads the depth panorama (the map's predictor or the frame perception)."""
+        return self.map.use_depth or self.frame_depth
 
     def __post_init__(self) -> None:
         if self.free_space_input < 0:

@@ -44,6 +44,20 @@ def normalise_rgb(images: Tensor) -> Tensor:
     return torch.cat([(rgb - mean) / std, x[:, 3:]], dim=1)
 
 
+def with_depth(panorama: Tensor, depth: Tensor | None, max_depth: float, who: str) -> Tensor:
+    """``(B, 3, H, W)`` panorama and ``(B, H, W)`` depth → ``(B, 4, H, W)`` float input.
+
+    Depth enters as ``clamp(depth, 0, max_depth) / max_depth`` (0 = no hit, as the
+    renderer writes it). ``who`` names the setting that asked for depth, for the error
+    when there is none.
+    """
+    if depth is None:
+        raise ValueError(f"{who} is set but no depth was given (the env must render it: "
+                         f"EnvConfig(depth=True))")
+    d = depth.float().clamp(0, max_depth) / max_depth
+    return torch.cat([panorama.float(), d.unsqueeze(1)], dim=1)
+
+
 class BasicBlock(nn.Module):
     """torchvision's ResNet BasicBlock (two 3×3 convs and a residual)."""
 

@@ -20,7 +20,7 @@ import torch
 from torch import Tensor, nn
 
 from collavn.models.config import ModelConfig
-from collavn.models.encoders import make_encoder
+from collavn.models.encoders import make_encoder, with_depth
 from collavn.models.matching import GoalMatcher
 from collavn.models.readout import PerceptionReadout, RingReadout
 
@@ -35,6 +35,7 @@ def frame_spec(cfg: ModelConfig) -> dict[str, Any]:
     """
     return {"encoder": cfg.encoder, "embed_dim": cfg.embed_dim,
             "panorama_shape": list(cfg.panorama_shape), "goal_shape": list(cfg.goal_shape),
+            **({"frame_depth": True} if cfg.frame_depth else {}),
             "goal_match": {"enabled": cfg.goal_match.enabled,
                            "channels": cfg.goal_match.channels,
                            "scales": list(cfg.goal_match.scales),
@@ -50,7 +51,10 @@ class FramePerception(nn.Module):
     def __init__(self, cfg: ModelConfig) -> None:
         super().__init__()
         emb = cfg.embed_dim
-        self.panorama_encoder = make_encoder(cfg.encoder, cfg.panorama_shape, emb,
+        channels, h, w = cfg.panorama_shape
+        self.frame_depth, self.max_depth = cfg.frame_depth, cfg.map.max_depth
+        self.panorama_encoder = make_encoder(cfg.encoder,
+                                             (channels + int(cfg.frame_depth), h, w), emb,
                                              cfg.weights_path)
         self.goal_encoder = make_encoder(cfg.encoder, cfg.goal_shape, emb, cfg.weights_path)
         self.goal_matcher = (GoalMatcher(cfg.goal_match, cfg.panorama_shape, cfg.goal_shape)
@@ -70,24 +74,29 @@ class FramePerception(nn.Module):
             self.readout = PerceptionReadout(emb, self.pair_goal_size, r.bins, r.hidden)
         self.goal_size = self.pair_goal_size + r.size
 
-    def see(self, panorama: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
+    def see(self, panorama: Tensor, goal: Tensor, depth: Tensor | None = None
+            ) -> tuple[Tensor, Tensor]:
         """``(B, 3, H, W)``, ``(B, 3, Hg, Wg)`` uint8 → o ``(B, embed)``, g ``(B, goal_size)``.
 
         ``g`` is the goal embedding, then the match vector (goal matching), then the
-        readout's features (perception readout).
+        readout's features (perception readout). ``depth (B, H, W)`` metres is read
+        (and required) iff ``ModelConfig.frame_depth``.
         """
-        o, g, ring = self.see_pair(panorama, goal)
+        o, g, ring = self.see_pair(panorama, goal, depth)
         if self.readout is not None:
             g = torch.cat([g, self.readout.features(o, g, ring)], dim=1)
         return o, g
 
-    def see_pair(self, panorama: Tensor, goal: Tensor
+    def see_pair(self, panorama: Tensor, goal: Tensor, depth: Tensor | None = None
                  ) -> tuple[Tensor, Tensor, Tensor | None]:
         """What the readout reads: ``o``, ``g`` (without the readout's features), ring.
 
-        The ring is the goal matcher's (``None`` without goal matching).
+        The ring is the goal matcher's (``None`` without goal matching); the matcher
+        compares RGB with RGB, so depth enters through the panorama encoder only.
         """
-        o = self.panorama_encoder(panorama)
+        o = self.panorama_encoder(
+            with_depth(panorama, depth, self.max_depth, "ModelConfig.frame_depth")
+            if self.frame_depth else panorama)
         g = self.goal_encoder(goal)
         ring = None
         if self.goal_matcher is not None:

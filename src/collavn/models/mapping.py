@@ -33,7 +33,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from collavn.models.config import MapConfig
-from collavn.models.encoders import channels_last, make_encoder
+from collavn.models.encoders import channels_last, make_encoder, with_depth
 
 MAP_CHANNELS = 4  # obstacle, explored, trajectory, current location
 
@@ -179,12 +179,8 @@ class LocalMapPredictor(nn.Module):
         Returns:
             ``(B, 2, m, m)`` logits (obstacle, explored) and ``(B, hidden)`` features.
         """
-        x = panorama
-        if self.cfg.use_depth:
-            if depth is None:
-                raise ValueError("MapConfig.use_depth is set but no depth was given")
-            d = depth.float().clamp(0, self.cfg.max_depth) / self.cfg.max_depth
-            x = torch.cat([panorama.float(), d.unsqueeze(1)], dim=1)
+        x = (with_depth(panorama, depth, self.cfg.max_depth, "MapConfig.use_depth")
+             if self.cfg.use_depth else panorama)
         hidden = self.encoder(x)
         seed = self.fc(hidden).view(-1, 64, self.seed, self.seed)
         return self.decoder(seed), hidden

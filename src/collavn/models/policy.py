@@ -411,7 +411,7 @@ class ActorCritic(nn.Module):
         keys = (["pose_delta", "active"] + (["free_space"] if self.cfg.free_space_input else [])
                 + (["explore_action"] if self.cfg.explore_prior else []))
         if not self.frames_frozen:
-            keys += ["panorama", "goal"]
+            keys += ["panorama", "goal"] + (["depth"] if self.cfg.frame_depth else [])
         if not self.cfg.map.detach:
             keys += ["panorama"] + (["depth"] if self.cfg.map.use_depth else [])
         return tuple(dict.fromkeys(keys))
@@ -425,7 +425,8 @@ class ActorCritic(nn.Module):
         """
         out = dict(stored or {})
         if not all(k in out for k in FRAME_PERCEPTS):
-            out["o"], out["g"] = self._dispatch(AgentTower.see, obs["panorama"], obs["goal"])
+            out["o"], out["g"] = self._dispatch(AgentTower.see, obs["panorama"], obs["goal"],
+                                                obs.get("depth"))
         tracked = all(k in out for k in MAP_TRACK)
         if "map_hidden" not in out or not (tracked or "map_logits" in out):
             out["map_logits"], out["map_hidden"] = self._dispatch(

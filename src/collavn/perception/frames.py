@@ -43,6 +43,8 @@ class FrameSet:
         goal_column: ``(P, G)`` straight-line bearing as a panorama column.
         path_column: ``(P, G)`` shortest-path bearing as a column (NaN: unreachable).
         free: ``(P, W)`` free metres along every column.
+        depths: ``(P, H, W)`` float16 metres of each panorama (``None``: not rendered;
+            the frame perception reads them iff ``ModelConfig.frame_depth``).
     """
 
     panoramas: np.ndarray
@@ -53,6 +55,7 @@ class FrameSet:
     goal_column: np.ndarray
     path_column: np.ndarray
     free: np.ndarray
+    depths: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.panoramas)
@@ -79,8 +82,12 @@ def _poses_near(scene: Scene, goals: np.ndarray, count: int, near: float,
 
 def render_frames(scenes: Sequence[Scene], env: EnvConfig, cfg: PerceptionConfig,
                   frames_per_scene: int, rng: np.random.Generator,
-                  on_scene: Callable[[int], None] | None = None) -> FrameSet:
-    """Render and label ``frames_per_scene`` panoramas and the goals of every scene."""
+                  on_scene: Callable[[int], None] | None = None,
+                  depth: bool = False) -> FrameSet:
+    """Render and label ``frames_per_scene`` panoramas and the goals of every scene.
+
+    ``depth``: keep each panorama's depth too (``FrameSet.depths``).
+    """
     parts: list[dict[str, np.ndarray]] = []
     goal_images: list[np.ndarray] = []
     offset = 0
@@ -94,7 +101,7 @@ def render_frames(scenes: Sequence[Scene], env: EnvConfig, cfg: PerceptionConfig
         yaws = rng.uniform(-np.pi, np.pi, len(pos))
         sensors = Sensors(scene, env)
         try:
-            panoramas = sensors.panoramas(np.concatenate([pos, yaws[:, None]], 1)[:, None]).rgb
+            views = sensors.panoramas(np.concatenate([pos, yaws[:, None]], 1)[:, None])
             goal_poses = np.concatenate([goals, goal_yaws[:, None]], 1)[:, None]
             goal_images.append(sensors.goal_images(goal_poses)[:, 0])
         finally:
@@ -102,7 +109,8 @@ def render_frames(scenes: Sequence[Scene], env: EnvConfig, cfg: PerceptionConfig
         w = env.panorama_width
         fields = [scene.geodesic_field(g) for g in goals]
         parts.append({
-            "panoramas": panoramas[:, 0],
+            "panoramas": views.rgb[:, 0],
+            **({"depths": views.depth[:, 0].astype(np.float16)} if depth else {}),
             "goal_index": np.broadcast_to(offset + np.arange(g_count), (len(pos), g_count)),
             "own": own,
             "distance": np.stack([geodesic_distances(f, pos) for f in fields], 1),
@@ -123,7 +131,8 @@ def sample_batch(frames: FrameSet, size: int, cfg: PerceptionConfig,
 
     Returns:
         ``panorama (B, 3, H, W)``, ``goal (B, 3, Hg, Wg)`` uint8; ``distance (B,)``,
-        ``goal_column (B,)``, ``path_column (B,)`` and ``free (B, W)`` float.
+        ``goal_column (B,)``, ``path_column (B,)`` and ``free (B, W)`` float; with
+        ``frames.depths`` also ``depth (B, H, W)`` float32, turned with the panorama.
     """
     p = rng.integers(0, len(frames), size)
     g_count = frames.goal_index.shape[1]
@@ -131,6 +140,7 @@ def sample_batch(frames: FrameSet, size: int, cfg: PerceptionConfig,
                  rng.integers(0, g_count, size))
     pano, goal = frames.panoramas[p], frames.goals[frames.goal_index[p, j]]
     free = frames.free[p]
+    depth = None if frames.depths is None else frames.depths[p].astype(np.float32)
     cols = {k: getattr(frames, k)[p, j].astype(np.float64)
             for k in ("goal_column", "path_column")}
     w = pano.shape[-1]
@@ -144,7 +154,10 @@ def sample_batch(frames: FrameSet, size: int, cfg: PerceptionConfig,
         goal = np.where(flip[:, None, None, None], goal[..., ::-1], goal)
         pano = np.take_along_axis(pano, index[:, None, None, :], axis=-1)
         free = np.take_along_axis(free, index, axis=-1)
+        if depth is not None:
+            depth = np.take_along_axis(depth, index[:, None, :], axis=-1)
         for k, c in cols.items():
             cols[k] = np.mod(np.where(flip, shift - c, c + shift), w)
     return {"panorama": np.ascontiguousarray(pano), "goal": np.ascontiguousarray(goal),
-            "distance": frames.distance[p, j], "free": free, **cols}
+            "distance": frames.distance[p, j], "free": free, **cols,
+            **({} if depth is None else {"depth": np.ascontiguousarray(depth)})}

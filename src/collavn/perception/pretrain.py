@@ -147,7 +147,7 @@ class Pretrainer:
         """Total loss of a batch and its parts."""
         p = self.cfg.perception
         t = {k: torch.as_tensor(v) for k, v in batch.items()}
-        parts = losses(self.heads(*self.frames.see_pair(t["panorama"], t["goal"])),
+        parts = losses(self.heads(*self.frames.see_pair(t["panorama"], t["goal"], t.get("depth"))),
                        targets(t, p.bins, p.max_distance))
         total = torch.stack(list(parts.values())).sum()
         return total, {k: float(v.detach()) for k, v in parts.items()}
@@ -191,7 +191,7 @@ class Pretrainer:
         for _ in range(max(1, pairs // p.batch_size)):
             batch = sample_batch(self.val, p.batch_size, p, rng, augment=False)
             t = {k: torch.as_tensor(v) for k, v in batch.items()}
-            pred = heads(*frames.see_pair(t["panorama"], t["goal"]))
+            pred = heads(*frames.see_pair(t["panorama"], t["goal"], t.get("depth")))
             target = targets(t, p.bins, p.max_distance)
             loss.append(float(torch.stack(list(losses(pred, target).values())).sum()))
             for k, v in accuracies(pred, target).items():
@@ -246,7 +246,8 @@ def load_frames(cfg: PretrainConfig, progress: object) -> tuple[FrameSet, FrameS
             progress.advance(task, k)
 
         rng = np.random.default_rng([cfg.seed, len(out)])
-        out.append(render_frames(scenes, cfg.env, draw, count, rng, advance))
+        out.append(render_frames(scenes, cfg.env, draw, count, rng, advance,
+                                 depth=cfg.model.frame_depth))
     return out[0], out[1]
 
 

@@ -11,17 +11,17 @@ from torch import Tensor
 
 from collavn.models.config import ModelConfig
 
-#: Observation entries a policy reads (``depth`` only when the map uses it).
+#: Observation entries every policy reads (:func:`policy_keys` adds the optional ones).
 POLICY_KEYS = ("panorama", "goal", "pose_delta", "active")
 
 
 def policy_keys(cfg: ModelConfig) -> tuple[str, ...]:
     """Observation entries a model of ``cfg`` reads.
 
-    ``depth`` for the map, ``free_space`` and ``explore_action`` where it reads those
-    sensors (:func:`env_overrides` turns them on).
+    ``depth`` for the map or the frame perception, ``free_space`` and
+    ``explore_action`` where it reads those sensors (:func:`env_overrides` turns them on).
     """
-    return (*POLICY_KEYS, *(("depth",) if cfg.map.use_depth else ()),
+    return (*POLICY_KEYS, *(("depth",) if cfg.reads_depth else ()),
             *(("free_space",) if cfg.free_space_input else ()),
             *(("explore_action",) if cfg.explore_prior else ()))
 
@@ -30,7 +30,7 @@ def env_overrides(cfg: ModelConfig) -> dict[str, Any]:
     """The ``EnvConfig`` fields a model of ``cfg`` needs: image sizes and its sensors."""
     _, h, w = cfg.panorama_shape
     return {"panorama_width": w, "panorama_height": h, "goal_size": cfg.goal_shape[-1],
-            **({"depth": True} if cfg.map.use_depth else {}),
+            **({"depth": True} if cfg.reads_depth else {}),
             **({"free_space": cfg.free_space_input} if cfg.free_space_input else {}),
             **({"explore_action": True} if cfg.explore_prior else {})}
 

@@ -115,6 +115,7 @@ LATER_FIELDS: dict[str, Any] = {
     "ppo.comm_lr_scale": 1.0,
     "model.action_modes": 1,
     "model.explore_prior": False,
+    "model.frame_depth": False,
     "env.success_reward": 0.0,
     "imitation.lr_decay": False,
     "run.train_scenes": 25,

@@ -102,14 +102,15 @@ class Run:
 
 
 def env_config(cfg: TrainConfig) -> EnvConfig:
-    """``cfg.env`` plus what the run needs: depth and gt maps for the map, expert info.
+    """``cfg.env`` plus what the run needs: depth, gt maps for the map, expert info.
 
     ``depth``, ``free_space``, ``explore_action``, ``gt_map``, ``gt_map_size`` and
     ``privileged`` are set here, from the model and the method, whatever ``cfg.env`` says.
     """
     m = cfg.model.map
     seeker = has_expert(cfg) and cfg.imitation.expert == "seeker"
-    return replace(cfg.env, depth=m.use_depth or seeker, free_space=cfg.model.free_space_input,
+    return replace(cfg.env, depth=cfg.model.reads_depth or seeker,
+                   free_space=cfg.model.free_space_input,
                    explore_action=cfg.model.explore_prior, gt_map=cfg.mapping.enabled,
                    gt_map_size=round(m.local_size * m.resolution / 0.1),
                    privileged=has_expert(cfg))
