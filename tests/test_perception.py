@@ -136,6 +136,8 @@ def test_depth_turns_with_the_panorama_and_is_read_only_when_asked(l_corridor):
     assert o.shape == plain_o.shape
     with pytest.raises(ValueError, match=r"ModelConfig\.frame_depth.*EnvConfig\(depth=True\)"):
         net.see(pan, goal)
+    with pytest.raises(ValueError, match=r"depth \(4, 64, 16\) does not fit the panorama"):
+        net.see(pan, goal, depth.transpose(1, 2))
     from collavn.policies.adapter import env_overrides, policy_keys
 
     assert "depth" in policy_keys(DEPTH_MODEL) and "depth" not in policy_keys(TINY_MODEL)
@@ -427,6 +429,14 @@ def test_the_held_out_frames_do_not_change_with_the_training_draw():
     held = held_out_config(near)
     assert (held.near_distance, held.own_goal_fraction) == (10.0, 0.5)
     assert held.frames_per_scene == near.frames_per_scene
+    # the held-out pairs too: the same weights score the same, whatever own_goal_fraction
+    scores = []
+    for perception in (p, near):
+        pcfg = PretrainConfig(env=cfg.env, model=cfg.model, perception=perception,
+                              progress=False)
+        torch.manual_seed(0)
+        scores.append(Pretrainer(pcfg, train_a, val_a).evaluate(pairs=64))
+    assert scores[0] == scores[1]
 
 
 def test_the_weight_average_is_what_pretraining_scores_and_saves(l_corridor, tmp_path,

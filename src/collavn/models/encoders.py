@@ -54,6 +54,10 @@ def with_depth(panorama: Tensor, depth: Tensor | None, max_depth: float, who: st
     if depth is None:
         raise ValueError(f"{who} is set but no depth was given (the env must render it: "
                          f"EnvConfig(depth=True))")
+    b, _, h, w = panorama.shape
+    if tuple(depth.shape) != (b, h, w):
+        raise ValueError(f"{who}: depth {tuple(depth.shape)} does not fit the panorama "
+                         f"{tuple(panorama.shape)}; expected {(b, h, w)}")
     d = depth.float().clamp(0, max_depth) / max_depth
     return torch.cat([panorama.float(), d.unsqueeze(1)], dim=1)
 

@@ -99,7 +99,6 @@ class SeekerPolicy:
         self.executed(state, actions, active)
         return actions, state
 
-
     def executed(self, state: SeekerState, actions: np.ndarray, active: np.ndarray) -> None:
         """Record the ``(E, N, 2)`` actions the env was given (the odometry check's base)."""
         self.explorer.executed(state.explore, actions, active)
