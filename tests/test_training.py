@@ -326,6 +326,58 @@ def test_imitation_likelihood_falls_on_a_fixed_batch_and_its_std_is_learned(mode
     assert (log_std.detach() - std_before).abs().min() > 1e-3  # σ follows the residual
 
 
+def test_belief_labels_on_hand_picked_poses():
+    from collavn.models.belief import belief_labels
+    # facing +x at the origin: a goal straight ahead, to the left (+y, counter-clockwise),
+    # behind, to the right; then facing +y, the goal at +x is to the right
+    pose = np.array([[0.0, 0.0, 0.0]] * 4 + [[1.0, 1.0, np.pi / 2]])
+    goal = np.array([[2.0, 0.0], [0.0, 3.0], [-1.0, 0.0], [0.0, -0.5], [2.0, 1.0]])
+    labels = belief_labels(pose, goal, 16)
+    assert labels[:, 0].tolist() == [0, 4, 8, 12, 12]
+    assert labels[:, 1] == pytest.approx(np.log1p([2.0, 3.0, 1.0, 0.5, 1.0]))
+    # a sector is centred on its direction: ±11.25° either side of straight ahead is 0
+    edge = belief_labels(np.zeros((2, 3)), np.array([[1.0, np.tan(0.19)],
+                                                     [1.0, -np.tan(0.19)]]), 16)
+    assert edge[:, 0].tolist() == [0, 0]
+    assert belief_labels(np.zeros((1, 3)), np.array([[1.0, np.tan(0.21)]]), 16)[0, 0] == 1
+
+
+def test_goal_belief_head_learns_in_il_and_nothing_else_changes_without_it():
+    from collavn.models.belief import belief_labels
+    cfg, run, rollout = _fixed_batch("il", goal_belief=8)
+    assert rollout.belief_labels is not None and rollout.active.any()
+    # the labels are the privileged pose and goal of the step the action was taken in
+    run2 = build_run(cfg, DistInfo(), torch.device("cpu"))
+    sync_point(run2)
+    first = belief_labels(run2.obs["world_pose"], run2.obs["goal_position"], 8)
+    assert torch.equal(rollout.belief_labels[0], torch.as_tensor(first))
+    head = run.model.towers[0].goal_belief
+    assert head is not None and head.out_features == 9
+    stats: dict[str, list[float]] = {}
+    before = float(imitation_loss(run.model, rollout, 1.0, stats).detach())
+    assert before == pytest.approx(stats["imitation"][0] + stats["belief_sector"][0]
+                                   + stats["belief_distance"][0], rel=1e-5)
+    weight = head.weight.detach().clone()
+    il = dataclasses.replace(cfg.imitation, epochs=15, num_minibatches=1)
+    for group in run.optimizer.param_groups:
+        group["lr"] = 1e-3
+    losses = imitation_update(run.model, run.optimizer, [rollout], il, run.generator, 1.0)
+    assert set(losses) == {"imitation", "belief_sector", "belief_distance",
+                           "belief_accuracy"}
+    after: dict[str, list[float]] = {}
+    imitation_loss(run.model, rollout, 1.0, after)
+    assert after["belief_sector"][0] < stats["belief_sector"][0] - 0.2
+    assert after["belief_distance"][0] < stats["belief_distance"][0]
+    assert not torch.equal(head.weight, weight)
+    # weight 0: the plain likelihood; without the head: no labels are stored
+    assert float(imitation_loss(run.model, rollout, 0.0).detach()) == pytest.approx(
+        after["imitation"][0], rel=1e-5)
+    _, plain_run, plain = _fixed_batch("il")
+    assert plain.belief_labels is None and plain_run.model.towers[0].goal_belief is None
+    assert set(imitation_update(plain_run.model, plain_run.optimizer, [plain], il,
+                                plain_run.generator, 1.0)) == {"imitation"}
+
+
 def test_map_fifo_keeps_the_newest_samples():
     from collavn.training.map_training import MapFIFO
 

@@ -214,6 +214,18 @@ class ModelConfig:
             stays RGB, as the task gives it. Measured (README, 2026-12-06): held-out
             path direction 1–2 m from the goal 0.445 → 0.485, but ``il`` on it no
             better (−0.038 and −0.010 easy SR over two seeds), so it is off in ``cpu``.
+        goal_belief: Sectors of an auxiliary head on the actor's GRU state that says
+            where the goal is: its egocentric straight-line bearing (one of
+            ``goal_belief`` sectors, the first centred straight ahead) and its log
+            distance. ``il`` trains it on privileged labels of the states it visits
+            (``--imitation.belief-coef``); no action reads it. It asks the recurrent
+            state to carry the goal's position from step to step on the policy's own
+            trajectories, where the frame perception alone is right least often
+            (1–2 m from the goal). 0 = no head (not in the paper). Measured (README,
+            2026-12-06): on ``il``'s own val trajectories the head's bearing is right
+            (±1 of 16 sectors) on 0.39 of steps 1–2 m from the goal where the readout is
+            on 0.27, and agents end nearer their goals, but ``il``'s SR did not rise
+            (−0.010 and −0.015 easy over two seeds), so it is off in ``cpu``.
         log_std_init: Initial log standard deviation of the Gaussian policy.
         action_modes: Components of the action distribution: 1 = one diagonal Gaussian
             (the paper's); K > 1 = a mixture of K Gaussians with learned weights (shared
@@ -242,6 +254,7 @@ class ModelConfig:
     free_space_input: int = 0
     explore_prior: bool = False
     frame_depth: bool = False
+    goal_belief: int = 0
     log_std_init: float = -0.5
     action_modes: int = 1
     per_agent_params: bool = False
@@ -259,6 +272,8 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if self.free_space_input < 0:
             raise ValueError(f"free_space_input must be ≥ 0, got {self.free_space_input}")
+        if self.goal_belief < 0:
+            raise ValueError(f"goal_belief must be ≥ 0 sectors, got {self.goal_belief}")
         if self.action_modes < 1:
             raise ValueError(f"action_modes must be ≥ 1, got {self.action_modes}")
         if self.readout.enabled and self.readout.ring and not self.goal_match.enabled:

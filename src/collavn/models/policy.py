@@ -107,6 +107,9 @@ class AgentTower(FramePerception):
                     -0.5, 0.5, modes)
         self.critic_value = nn.Linear(cfg.critic_hidden_size, 1)
         self.log_std = nn.Parameter(torch.full((ACTION_DIM,), cfg.log_std_init))
+        # where the goal is (K sector logits + log distance), read off the actor's state
+        self.goal_belief = (nn.Linear(cfg.hidden_size, cfg.goal_belief + 1)
+                            if cfg.goal_belief else None)
 
     def predict_map(self, panorama: Tensor, depth: Tensor | None) -> tuple[Tensor, Tensor]:
         """Local-map logits ``(B, 2, m, m)`` and predictor trunk ``(B, hidden)``."""
@@ -185,6 +188,12 @@ class AgentTower(FramePerception):
                   else self.actor_modes(actor_h))
         return (mean, self.log_std.expand_as(mean), logits,
                 self.critic_value(critic_h).squeeze(-1))
+
+
+    def belief(self, actor_h: Tensor) -> tuple[Tensor]:
+        """``(B, K + 1)``: the goal-belief head on the actor's state (see :mod:`.belief`)."""
+        assert self.goal_belief is not None
+        return (self.goal_belief(actor_h),)
 
 
 def explore_prior(prior: Tensor | None) -> Tensor:
@@ -327,12 +336,15 @@ class EvaluateOutput:
         log_prob: ``(T, E, N)``; entropy: ``(T, E, N)``; value: ``(T, E, N)``.
         target_log_prob: ``(T, E, N)`` log-probability of the ``targets`` passed to
             :meth:`ActorCritic.evaluate_actions` (an expert's actions), if any.
+        belief: ``(T, E, N, K + 1)`` the goal-belief head's output
+            (``ModelConfig.goal_belief``; ``None`` without the head).
     """
 
     log_prob: Tensor
     entropy: Tensor
     value: Tensor
     target_log_prob: Tensor | None = None
+    belief: Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -347,6 +359,7 @@ class Unrolled:
             nothing re-tracked them; :meth:`ActorCritic.evaluate_actions` drops it).
         percepts: Every percept of every step, ``(T, E, N, ...)``.
         messages: The communication round of each step.
+        actor_h: ``(T, E, N, hidden)`` the actor's state after each step.
     """
 
     mean: Tensor
@@ -356,6 +369,7 @@ class Unrolled:
     state: AgentState
     percepts: Percepts
     messages: list[Message]
+    actor_h: Tensor
 
 
 class ActorCritic(nn.Module):
@@ -487,8 +501,10 @@ class ActorCritic(nn.Module):
         if targets is not None:
             target_log_prob = action_distribution(run.mean, run.log_std.detach(),
                                                   run.logits).log_prob(targets)
+        belief = (self._over_steps(AgentTower.belief, run.actor_h)[0]
+                  if self.cfg.goal_belief else None)
         return EvaluateOutput(dist.log_prob(raw_actions), dist.entropy(), run.value,
-                              target_log_prob)
+                              target_log_prob, belief)
 
     def _unroll(self, obs: Mapping[str, Tensor], state: AgentState, starts: Tensor,
                 stored: Mapping[str, Tensor] | None) -> Unrolled:
@@ -555,12 +571,12 @@ class ActorCritic(nn.Module):
             actor_hs.append(a_new)
             critic_hs.append(c_new)
             actor_h, critic_h = kept(t, a_new, a_h), kept(t, c_new, c_h)
+        actor_seq = torch.stack(actor_hs)
         mean, log_std, logits, value = self._over_steps(
-            AgentTower.heads, torch.stack(actor_hs), torch.stack(critic_hs),
-            obs.get("explore_action"))
+            AgentTower.heads, actor_seq, torch.stack(critic_hs), obs.get("explore_action"))
         final = replace(talk, actor_h=actor_h, critic_h=critic_h, grid=grid,
                         features=features, pose=pose)
-        return Unrolled(mean, log_std, logits, value, final, p, messages)
+        return Unrolled(mean, log_std, logits, value, final, p, messages, actor_seq)
 
     def _over_steps(self, fn: Callable[..., tuple[Tensor, ...]],
                     *args: Tensor | None) -> tuple[Tensor, ...]:

@@ -116,6 +116,8 @@ LATER_FIELDS: dict[str, Any] = {
     "model.action_modes": 1,
     "model.explore_prior": False,
     "model.frame_depth": False,
+    "model.goal_belief": 0,
+    "imitation.belief_coef": 1.0,
     "env.success_reward": 0.0,
     "imitation.lr_decay": False,
     "run.train_scenes": 25,

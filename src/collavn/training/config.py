@@ -207,6 +207,8 @@ class ImitationConfig:
     """Mini-batches per epoch (split over envs)."""
     lr: float = 3e-4
     """Adam learning rate."""
+    belief_coef: float = 1.0
+    """Weight of the goal-belief head's loss (only with ``--model.goal-belief K``)."""
     lr_decay: bool = False
     """Decay the learning rate linearly from ``lr`` to 0 at ``--total-steps`` (by
     agent-steps, so a seed gives the same schedule on any machine; a time budget that
@@ -217,6 +219,7 @@ class ImitationConfig:
             check_count(f"--imitation.{name.replace('_', '-')}", getattr(self, name))
         check_number("--imitation.lr", self.lr)
         check_number("--imitation.sight", self.sight)
+        check_number("--imitation.belief-coef", self.belief_coef, allow_minimum=True)
         if self.expert not in ("oracle", "seeker"):
             raise ConfigError(f"--imitation.expert must be oracle or seeker, got {self.expert!r}")
         for name in ("beta_decay", "beta_min"):

@@ -35,6 +35,7 @@ import torch
 from torch import Tensor
 
 from collavn.errors import CollavnError
+from collavn.models.belief import belief_loss, sector_accuracy
 from collavn.models.policy import ActorCritic
 from collavn.policies.oracle import OraclePolicy
 from collavn.policies.seeker import SeekerPolicy, SeekerState
@@ -112,46 +113,62 @@ def mix_actions(learner: np.ndarray, expert: np.ndarray, beta: float,
     return np.where(use_expert[:, None, None], expert, learner)
 
 
-def imitation_loss(model: ActorCritic, batch: Rollout) -> Tensor:
+def imitation_loss(model: ActorCritic, batch: Rollout, belief_coef: float = 0.0,
+                   stats: dict[str, list[float]] | None = None) -> Tensor:
     """Negative log-likelihood of the expert's actions, mean over active ``(T, E, N)``.
 
     ``-log N(a* | μ(s), σ)`` with the policy's own mean and learned state-independent σ.
+    With a goal-belief head (``ModelConfig.goal_belief``) and the rollout's labels, plus
+    ``belief_coef ×`` (the sector's cross-entropy + the log distance's squared error).
+    ``stats`` collects each term (and the belief's sector accuracy, ±1 sector).
     """
     out = model.evaluate_actions(batch.obs, batch.initial_state, batch.episode_start,
                                  batch.raw_actions, batch.percepts)
-    return -masked_mean(out.log_prob, batch.active)
+    loss = -masked_mean(out.log_prob, batch.active)
+    record = {"imitation": float(loss.detach())}
+    if out.belief is not None and batch.belief_labels is not None and belief_coef > 0:
+        sector, distance = belief_loss(out.belief, batch.belief_labels, batch.active)
+        loss = loss + belief_coef * (sector + distance)
+        record |= {"belief_sector": float(sector.detach()),
+                   "belief_distance": float(distance.detach()),
+                   "belief_accuracy": sector_accuracy(out.belief.detach(),
+                                                      batch.belief_labels, batch.active)}
+    if stats is not None:
+        for k, v in record.items():
+            stats.setdefault(k, []).append(v)
+    return loss
 
 
 def imitation_update(model: ActorCritic, optimizer: torch.optim.Optimizer,
                      rollouts: Sequence[Rollout], cfg: ImitationConfig,
                      generator: torch.Generator, max_grad_norm: float,
-                     sync_gradients: Callable[[], None] | None = None) -> float:
+                     sync_gradients: Callable[[], None] | None = None) -> dict[str, float]:
     """``epochs`` passes over the kept rollouts (shuffled), ``num_minibatches`` steps each.
 
     Returns:
-        The mean loss.
+        The mean of each loss term over the steps: ``imitation`` (the likelihood's) and,
+        with a goal-belief head, ``belief_sector``, ``belief_distance`` and
+        ``belief_accuracy``.
     """
     params = [p for group in optimizer.param_groups for p in group["params"]]
-    losses = []
+    stats: dict[str, list[float]] = {}
     for _ in range(cfg.epochs):
         for k in torch.randperm(len(rollouts), generator=generator).tolist():
-            losses += _rollout_steps(model, optimizer, params, rollouts[k], cfg, generator,
-                                     max_grad_norm, sync_gradients)
-    return float(np.mean(losses))
+            _rollout_steps(model, optimizer, params, rollouts[k], cfg, generator,
+                           max_grad_norm, sync_gradients, stats)
+    return {k: float(np.nanmean(v)) for k, v in stats.items()}
 
 
 def _rollout_steps(model: ActorCritic, optimizer: torch.optim.Optimizer,
                    params: list[torch.nn.Parameter], rollout: Rollout, cfg: ImitationConfig,
                    generator: torch.Generator, max_grad_norm: float,
-                   sync_gradients: Callable[[], None] | None) -> list[float]:
-    losses = []
+                   sync_gradients: Callable[[], None] | None,
+                   stats: dict[str, list[float]]) -> None:
     for index in minibatch_envs(rollout.rewards.shape[1], cfg.num_minibatches, generator):
-        loss = imitation_loss(model, rollout.select_envs(index))
+        loss = imitation_loss(model, rollout.select_envs(index), cfg.belief_coef, stats)
         optimizer.zero_grad(set_to_none=False)
         loss.backward()
         if sync_gradients is not None:
             sync_gradients()
         torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
         optimizer.step()
-        losses.append(float(loss.detach()))
-    return losses

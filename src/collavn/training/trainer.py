@@ -38,6 +38,7 @@ from collavn.envs.config import EnvConfig
 from collavn.envs.vector import VectorEnv
 from collavn.errors import CheckpointError
 from collavn.files import prepare_output_dir
+from collavn.models.belief import belief_labels
 from collavn.models.policy import ActorCritic, AgentTower
 from collavn.models.state import AgentState
 from collavn.perception.encoder import EncoderFile, install_encoder, load_encoder
@@ -341,6 +342,8 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     rollout: Rollout | None = None
     imitating = cfg.method_spec.imitation
     beta = expert_probability(cfg.imitation, run.iteration)
+    # the goal-belief head learns in il, from the privileged observations the expert reads
+    believing = imitating and bool(model.cfg.goal_belief) and "world_pose" in run.obs
     comm, scores = CommStats(), ScoreTally()
     start = time.perf_counter()
     for t in range(cfg.ppo.rollout_steps):
@@ -352,7 +355,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
             rollout = Rollout.allocate(
                 cfg.ppo.rollout_steps, {k: obs_t[k] for k in model.replay_keys()},
                 run.state, {k: out.percepts[k] for k in model.stored_percepts},
-                expert=run.expert is not None and not imitating)
+                expert=run.expert is not None and not imitating, belief=believing)
         actions = out.action.cpu().numpy().astype(np.float64)
         stored = out.raw_action
         if run.expert is not None:
@@ -366,6 +369,10 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
                 rollout.expert_actions[t] = expert
             run.expert.executed(actions, run.obs["active"])
         rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value, out.percepts)
+        if rollout.belief_labels is not None:
+            rollout.belief_labels[t] = torch.as_tensor(belief_labels(
+                run.obs["world_pose"], run.obs["goal_position"], model.cfg.goal_belief),
+                device=device)
         comm.add(tally(out.message, obs_t["active"]))
         if model.cfg.comm.variant != "none":
             scores.add(out.message.scores, obs_t["active"])
@@ -406,10 +413,11 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
         run.demos.append(rollout)
         if cfg.imitation.lr_decay:
             scale_learning_rate(run.optimizer, 1.0 - run.agent_steps / cfg.run.total_steps)
-        loss = imitation_update(run.model, run.optimizer, list(run.demos), cfg.imitation,
-                                run.generator, cfg.ppo.max_grad_norm, sync)
+        losses = imitation_update(run.model, run.optimizer, list(run.demos), cfg.imitation,
+                                  run.generator, cfg.ppo.max_grad_norm, sync)
         run.maps.train_owed()
-        return {"loss/imitation": loss, "opt/learning_rate": run.optimizer.param_groups[0]["lr"]}
+        return {**{f"loss/{k}": v for k, v in losses.items()},
+                "opt/learning_rate": run.optimizer.param_groups[0]["lr"]}
     advantages, returns = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
                                       rollout.truncated, rollout.last_value, cfg.ppo.gamma,
                                       cfg.ppo.gae_lambda)
