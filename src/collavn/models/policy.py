@@ -189,7 +189,6 @@ class AgentTower(FramePerception):
         return (mean, self.log_std.expand_as(mean), logits,
                 self.critic_value(critic_h).squeeze(-1))
 
-
     def belief(self, actor_h: Tensor) -> tuple[Tensor]:
         """``(B, K + 1)``: the goal-belief head on the actor's state (see :mod:`.belief`)."""
         assert self.goal_belief is not None
