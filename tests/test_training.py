@@ -340,6 +340,10 @@ def test_belief_labels_on_hand_picked_poses():
                                                      [1.0, -np.tan(0.19)]]), 16)
     assert edge[:, 0].tolist() == [0, 0]
     assert belief_labels(np.zeros((1, 3)), np.array([[1.0, np.tan(0.21)]]), 16)[0, 0] == 1
+    from collavn.models.config import ModelConfig
+    for bad in (-1, 1):
+        with pytest.raises(ValueError, match=f"goal_belief must be 0 .* got {bad}"):
+            ModelConfig(goal_belief=bad)
 
 
 def test_goal_belief_head_learns_in_il_and_nothing_else_changes_without_it():

@@ -218,10 +218,11 @@ class ModelConfig:
             where the goal is: its egocentric straight-line bearing (one of
             ``goal_belief`` sectors, the first centred straight ahead) and its log
             distance. ``il`` trains it on privileged labels of the states it visits
-            (``--imitation.belief-coef``); no action reads it. It asks the recurrent
-            state to carry the goal's position from step to step on the policy's own
-            trajectories, where the frame perception alone is right least often
-            (1–2 m from the goal). 0 = no head (not in the paper). Measured (README,
+            (``--imitation.belief-coef``); no action reads it, and PPO neither reads
+            nor trains it. It asks the recurrent state to carry the goal's position
+            from step to step on the policy's own trajectories, where the frame
+            perception alone is right least often (1–2 m from the goal). 0 = no head,
+            1 is refused (not in the paper). Measured (README,
             2026-12-06): on ``il``'s own val trajectories the head's bearing is right
             (±1 of 16 sectors) on 0.39 of steps 1–2 m from the goal where the readout is
             on 0.27, and agents end nearer their goals, but ``il``'s SR did not rise
@@ -272,8 +273,9 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if self.free_space_input < 0:
             raise ValueError(f"free_space_input must be ≥ 0, got {self.free_space_input}")
-        if self.goal_belief < 0:
-            raise ValueError(f"goal_belief must be ≥ 0 sectors, got {self.goal_belief}")
+        if self.goal_belief < 0 or self.goal_belief == 1:
+            raise ValueError(f"goal_belief must be 0 (no head) or ≥ 2 sectors, got "
+                             f"{self.goal_belief}")
         if self.action_modes < 1:
             raise ValueError(f"action_modes must be ≥ 1, got {self.action_modes}")
         if self.readout.enabled and self.readout.ring and not self.goal_match.enabled:

@@ -343,7 +343,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     imitating = cfg.method_spec.imitation
     beta = expert_probability(cfg.imitation, run.iteration)
     # the goal-belief head learns in il, from the privileged observations the expert reads
-    believing = imitating and bool(model.cfg.goal_belief) and "world_pose" in run.obs
+    believing = imitating and bool(model.cfg.goal_belief)
     comm, scores = CommStats(), ScoreTally()
     start = time.perf_counter()
     for t in range(cfg.ppo.rollout_steps):
