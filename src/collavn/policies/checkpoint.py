@@ -120,6 +120,7 @@ LATER_FIELDS: dict[str, Any] = {
     "imitation.belief_coef": 1.0,
     "env.success_reward": 0.0,
     "imitation.lr_decay": False,
+    "imitation.homing_weight": 1.0,
     "run.train_scenes": 25,
 }
 

@@ -209,6 +209,12 @@ class ImitationConfig:
     """Adam learning rate."""
     belief_coef: float = 1.0
     """Weight of the goal-belief head's loss (only with ``--model.goal-belief K``)."""
+    homing_weight: float = 1.0
+    """``seeker`` only: weight of the steps where the expert is homing (the goal has been
+    in sight) against 1 for its searching steps, in the likelihood's weighted mean. A
+    learner that cannot tell whether the goal is in sight averages "explore on" and "turn
+    to the goal"; weighting the homing steps makes missing a goal cost more than a
+    needless turn towards one."""
     lr_decay: bool = False
     """Decay the learning rate linearly from ``lr`` to 0 at ``--total-steps`` (by
     agent-steps, so a seed gives the same schedule on any machine; a time budget that
@@ -220,8 +226,13 @@ class ImitationConfig:
         check_number("--imitation.lr", self.lr)
         check_number("--imitation.sight", self.sight)
         check_number("--imitation.belief-coef", self.belief_coef, allow_minimum=True)
+        check_number("--imitation.homing-weight", self.homing_weight)
         if self.expert not in ("oracle", "seeker"):
             raise ConfigError(f"--imitation.expert must be oracle or seeker, got {self.expert!r}")
+        if self.homing_weight != 1.0 and self.expert != "seeker":
+            raise ConfigError("--imitation.homing-weight needs --imitation.expert seeker (the "
+                              "oracle homes from the first step: there is no search to weigh "
+                              f"against), got {self.expert!r}")
         for name in ("beta_decay", "beta_min"):
             value = getattr(self, name)
             check_number(f"--imitation.{name.replace('_', '-')}", value, allow_minimum=True)

@@ -84,6 +84,14 @@ class Expert:
         actions, self.state = self.policy.act(obs, self.state)
         return actions
 
+    def homing(self) -> np.ndarray | None:
+        """Which agents the seeker is homing: ``(E, N)`` bool, ``None`` for the oracle.
+
+        An agent homes (follows the oracle) once its goal has been in sight this
+        episode, as of the seeker's last :meth:`act`.
+        """
+        return None if self.state is None else self.state.seen.copy()
+
     def executed(self, actions: np.ndarray, active: np.ndarray) -> None:
         """Tell the expert what the env was given (DAgger: often the learner's actions)."""
         if isinstance(self.policy, SeekerPolicy):
@@ -117,14 +125,19 @@ def imitation_loss(model: ActorCritic, batch: Rollout, belief_coef: float = 0.0,
                    stats: dict[str, list[float]] | None = None) -> Tensor:
     """Negative log-likelihood of the expert's actions, mean over active ``(T, E, N)``.
 
-    ``-log N(a* | μ(s), σ)`` with the policy's own mean and learned state-independent σ.
+    ``-log N(a* | μ(s), σ)`` with the policy's own mean and learned state-independent σ;
+    a weighted mean when the rollout carries ``weights`` (``--imitation.homing-weight``).
     With a goal-belief head (``ModelConfig.goal_belief``) and the rollout's labels, plus
     ``belief_coef ×`` (the sector's cross-entropy + the log distance's squared error).
     ``stats`` collects each term (and the belief's sector accuracy, ±1 sector).
     """
     out = model.evaluate_actions(batch.obs, batch.initial_state, batch.episode_start,
                                  batch.raw_actions, batch.percepts)
-    loss = -masked_mean(out.log_prob, batch.active)
+    if batch.weights is None:
+        loss = -masked_mean(out.log_prob, batch.active)
+    else:
+        w = batch.weights * batch.active.to(batch.weights.dtype)
+        loss = -(out.log_prob * w).sum() / w.sum().clamp(min=1e-8)
     record = {"imitation": float(loss.detach())}
     if out.belief is not None and batch.belief_labels is not None and belief_coef > 0:
         sector, distance = belief_loss(out.belief, batch.belief_labels, batch.active)

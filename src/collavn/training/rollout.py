@@ -54,6 +54,8 @@ class Rollout:
             PPO's behaviour-cloning term (``--ppo.bc-coef``); ``None`` without one.
         belief_labels: ``(T, E, N, 2)`` where the goal was (sector, log distance; see
             :mod:`collavn.models.belief`), for the goal-belief head; ``None`` without it.
+        weights: ``(T, E, N)`` per-step weights of ``il``'s likelihood
+            (``--imitation.homing-weight``); ``None``: every step weighs 1.
     """
 
     obs: dict[str, Tensor]
@@ -69,15 +71,18 @@ class Rollout:
     last_value: Tensor
     expert_actions: Tensor | None = None
     belief_labels: Tensor | None = None
+    weights: Tensor | None = None
 
     @classmethod
     def allocate(cls, steps: int, first_obs: Mapping[str, Tensor], initial_state: AgentState,
                  percepts: Mapping[str, Tensor] | None = None,
-                 expert: bool = False, belief: bool = False) -> Rollout:
+                 expert: bool = False, belief: bool = False,
+                 weights: bool = False) -> Rollout:
         """Empty storage for ``steps`` steps shaped like one step's ``(E, N, ...)`` inputs.
 
         ``first_obs`` and ``percepts`` give the entries kept and their shapes; ``expert``
-        adds room for the expert's actions, ``belief`` for the goal-belief labels.
+        adds room for the expert's actions, ``belief`` for the goal-belief labels,
+        ``weights`` for per-step loss weights (filled with 1).
         """
         e, n = first_obs["active"].shape
         dev = first_obs["active"].device
@@ -91,7 +96,8 @@ class Rollout:
                   for k, v in (percepts or {}).items()}
         return cls(obs, stored, z(dtype=torch.bool), z(2), z(), z(), z(), z(dtype=torch.bool),
                    z(dtype=torch.bool), initial_state.detach(), torch.zeros(e, n, device=dev),
-                   z(2) if expert else None, z(2) if belief else None)
+                   z(2) if expert else None, z(2) if belief else None,
+                   z() + 1.0 if weights else None)
 
     @property
     def steps(self) -> int:
@@ -134,7 +140,8 @@ class Rollout:
                        self.truncated[:, index], self.initial_state.select_envs(index),
                        self.last_value[index],
                        None if self.expert_actions is None else self.expert_actions[:, index],
-                       None if self.belief_labels is None else self.belief_labels[:, index])
+                       None if self.belief_labels is None else self.belief_labels[:, index],
+                       None if self.weights is None else self.weights[:, index])
 
 
 def compute_gae(rewards: Tensor, values: Tensor, terminated: Tensor, truncated: Tensor,

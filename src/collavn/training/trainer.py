@@ -344,6 +344,8 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     beta = expert_probability(cfg.imitation, run.iteration)
     # the goal-belief head learns in il, from the privileged observations the expert reads
     believing = imitating and bool(model.cfg.goal_belief)
+    weighing = imitating and cfg.imitation.homing_weight != 1.0
+    homing = torch.zeros((), device=device)
     comm, scores = CommStats(), ScoreTally()
     start = time.perf_counter()
     for t in range(cfg.ppo.rollout_steps):
@@ -355,7 +357,8 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
             rollout = Rollout.allocate(
                 cfg.ppo.rollout_steps, {k: obs_t[k] for k in model.replay_keys()},
                 run.state, {k: out.percepts[k] for k in model.stored_percepts},
-                expert=run.expert is not None and not imitating, belief=believing)
+                expert=run.expert is not None and not imitating, belief=believing,
+                weights=weighing)
         actions = out.action.cpu().numpy().astype(np.float64)
         stored = out.raw_action
         if run.expert is not None:
@@ -364,6 +367,13 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
             if imitating:  # DAgger's mix; the expert's action is the target
                 actions = mix_actions(actions, expert_np, beta, run.rng)
                 stored = expert
+                seen = run.expert.homing()
+                if seen is not None:  # the share of active steps the expert homes on
+                    home = torch.as_tensor(seen & run.obs["active"], device=device)
+                    homing = homing + home.sum()
+                    if rollout.weights is not None:
+                        rollout.weights[t] = torch.where(home, cfg.imitation.homing_weight,
+                                                         1.0)
             else:  # PPO's behaviour-cloning target beside the policy's own action
                 assert rollout.expert_actions is not None
                 rollout.expert_actions[t] = expert
@@ -390,7 +400,9 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
                      **{f"comm/{k}": v for k, v in scores.rates().items()},
                      **message_weight(model),
                      "perf/collect_seconds": seconds,
-                     **({"imitation/beta": beta} if imitating else {})}
+                     **({"imitation/beta": beta,
+                         "imitation/homing": float(homing) / max(
+                             float(rollout.active.sum()), 1.0)} if imitating else {})}
 
 
 def track_episodes(run: Run, reward: np.ndarray, info: dict[str, Any]) -> None:
