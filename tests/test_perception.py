@@ -217,7 +217,8 @@ def test_a_frozen_encoder_runs_once_per_step_and_stays_bit_identical(tmp_path, m
                                              rollout.episode_start, rollout.raw_actions,
                                              rollout.percepts)
         assert torch.equal(out.log_prob, rollout.log_probs)
-        assert torch.equal(out.value, rollout.values)
+        # the value to rounding: ≤ 1e-7 on AVX-512 CPUs (see test_training's replay test)
+        torch.testing.assert_close(out.value, rollout.values, rtol=0, atol=1e-6)
     before = {n: p.detach().clone() for n, p in run.model.named_parameters()}
     learn(run, rollout)
     for name, p in run.model.named_parameters():
