@@ -133,11 +133,8 @@ def imitation_loss(model: ActorCritic, batch: Rollout, belief_coef: float = 0.0,
     """
     out = model.evaluate_actions(batch.obs, batch.initial_state, batch.episode_start,
                                  batch.raw_actions, batch.percepts)
-    if batch.weights is None:
-        loss = -masked_mean(out.log_prob, batch.active)
-    else:
-        w = batch.weights * batch.active.to(batch.weights.dtype)
-        loss = -(out.log_prob * w).sum() / w.sum().clamp(min=1e-8)
+    mask = batch.active if batch.weights is None else batch.weights * batch.active
+    loss = -masked_mean(out.log_prob, mask)
     record = {"imitation": float(loss.detach())}
     if out.belief is not None and batch.belief_labels is not None and belief_coef > 0:
         sector, distance = belief_loss(out.belief, batch.belief_labels, batch.active)

@@ -55,9 +55,12 @@ class PPOStats:
 
 
 def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
-    """Mean of ``x`` over the entries where ``mask`` is true (0 if none)."""
+    """Mean of ``x`` over the entries where ``mask`` is true (0 if none).
+
+    A non-negative float ``mask`` weighs the entries: the weighted mean.
+    """
     m = mask.to(x.dtype)
-    return (x * m).sum() / m.sum().clamp(min=1.0)
+    return (x * m).sum() / m.sum().clamp(min=torch.finfo(x.dtype).tiny)
 
 
 def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Tensor,

@@ -345,7 +345,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     # the goal-belief head learns in il, from the privileged observations the expert reads
     believing = imitating and bool(model.cfg.goal_belief)
     weighing = imitating and cfg.imitation.homing_weight != 1.0
-    homing = torch.zeros((), device=device)
+    homing: list[int] = []  # per step, active agents the expert homes (seeker only)
     comm, scores = CommStats(), ScoreTally()
     start = time.perf_counter()
     for t in range(cfg.ppo.rollout_steps):
@@ -368,12 +368,12 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
                 actions = mix_actions(actions, expert_np, beta, run.rng)
                 stored = expert
                 seen = run.expert.homing()
-                if seen is not None:  # the share of active steps the expert homes on
-                    home = torch.as_tensor(seen & run.obs["active"], device=device)
-                    homing = homing + home.sum()
+                if seen is not None:
+                    home = seen & run.obs["active"]
+                    homing.append(int(home.sum()))
                     if rollout.weights is not None:
-                        rollout.weights[t] = torch.where(home, cfg.imitation.homing_weight,
-                                                         1.0)
+                        rollout.weights[t] = torch.as_tensor(
+                            np.where(home, cfg.imitation.homing_weight, 1.0), device=device)
             else:  # PPO's behaviour-cloning target beside the policy's own action
                 assert rollout.expert_actions is not None
                 rollout.expert_actions[t] = expert
@@ -400,9 +400,9 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
                      **{f"comm/{k}": v for k, v in scores.rates().items()},
                      **message_weight(model),
                      "perf/collect_seconds": seconds,
-                     **({"imitation/beta": beta,
-                         "imitation/homing": float(homing) / max(
-                             float(rollout.active.sum()), 1.0)} if imitating else {})}
+                     **({"imitation/beta": beta} if imitating else {}),
+                     **({"imitation/homing": sum(homing) / max(float(rollout.active.sum()), 1.0)}
+                        if homing else {})}
 
 
 def track_episodes(run: Run, reward: np.ndarray, info: dict[str, Any]) -> None:
