@@ -111,12 +111,15 @@ def test_search_and_homing_split_by_hand():
     assert m["sighted"] == pytest.approx(3 / 5)
     assert m["homing"] == pytest.approx(1.0)
     assert m["unsighted SR"] == pytest.approx(0.0)
-    recs[0] = replace(recs[0], success=False)
+    assert math.isnan(m["failed homing collisions"])  # every sighted agent succeeded
+    recs[0] = replace(recs[0], success=False, collisions=7)
+    recs[2] = replace(recs[2], collisions=30)  # a success: its collisions do not count
     assert search_metrics(recs)["homing"] == pytest.approx(2 / 3)
+    assert search_metrics(recs)["failed homing collisions"] == pytest.approx(7.0)
     unmeasured = search_metrics(RECORDS)  # none measured
     assert unmeasured.pop("agents") == 0
     assert all(math.isnan(v) for v in unmeasured.values())
     table = search_table({"m": recs})
-    assert "| m | easy | 2 | 0.500 | 0.000 | 0.000 |" in table  # rows 0 (now failed), 1
-    assert "| m | hard | 1 | 0.000 | – | 0.000 |" in table  # row 5 is unmeasured
-    assert "| m | overall | 5 | 0.600 | 0.667 | 0.000 |" in table
+    assert "| m | easy | 2 | 0.500 | 0.000 | 0.000 | 7.0 |" in table  # rows 0 (now failed), 1
+    assert "| m | hard | 1 | 0.000 | – | 0.000 | – |" in table  # row 5 is unmeasured
+    assert "| m | overall | 5 | 0.600 | 0.667 | 0.000 | 7.0 |" in table
