@@ -152,7 +152,7 @@ def search_metrics(records: Sequence[AgentRecord]) -> dict[str, float]:
             "sighted": len(seen) / len(known) if known else math.nan,
             "homing": success_rate(seen),
             "unsighted SR": success_rate(unseen),
-            "failed homing collisions": float(np.mean([r.collisions for r in lost]))
+            "failed homing collisions": float(_column(lost, "collisions").mean())
             if lost else math.nan}
 
 
@@ -160,6 +160,11 @@ def search_groups(records: Sequence[AgentRecord]) -> dict[str, dict[str, float]]
     """:func:`search_metrics` per difficulty and ``overall``."""
     return {g: search_metrics([r for r in records if g == "overall" or r.difficulty == g])
             for g in (*DIFFICULTIES, "overall")}
+
+
+#: The :func:`search_metrics` keys :func:`search_table` shows, with their formats.
+SEARCH_COLUMNS = (("sighted", ".3f"), ("homing", ".3f"), ("unsighted SR", ".3f"),
+                  ("failed homing collisions", ".1f"))
 
 
 def search_table(records: Mapping[str, Sequence[AgentRecord]]) -> str:
@@ -171,10 +176,7 @@ def search_table(records: Mapping[str, Sequence[AgentRecord]]) -> str:
         for g, m in search_groups(recs).items():
             if not m["agents"]:
                 continue
-            cells = ["–" if math.isnan(m[k]) else f"{m[k]:.3f}"
-                     for k in ("sighted", "homing", "unsighted SR")]
-            lost = m["failed homing collisions"]
-            cells.append("–" if math.isnan(lost) else f"{lost:.1f}")
+            cells = ["–" if math.isnan(m[k]) else f"{m[k]:{fmt}}" for k, fmt in SEARCH_COLUMNS]
             lines.append(f"| {method} | {g} | {int(m['agents'])} | " + " | ".join(cells)
                          + " |")
     return "\n".join(lines) + "\n"
