@@ -162,21 +162,24 @@ def search_groups(records: Sequence[AgentRecord]) -> dict[str, dict[str, float]]
             for g in (*DIFFICULTIES, "overall")}
 
 
-#: The :func:`search_metrics` keys :func:`search_table` shows, with their formats.
-SEARCH_COLUMNS = (("sighted", ".3f"), ("homing", ".3f"), ("unsighted SR", ".3f"),
-                  ("failed homing collisions", ".1f"))
+#: The :func:`search_metrics` keys :func:`search_table` shows: (key, header, format).
+SEARCH_COLUMNS = (("sighted", "goal sighted", ".3f"),
+                  ("homing", "SR once sighted (homing)", ".3f"),
+                  ("unsighted SR", "SR never sighted", ".3f"),
+                  ("failed homing collisions", "collision steps, homing failed", ".1f"))
 
 
 def search_table(records: Mapping[str, Sequence[AgentRecord]]) -> str:
     """Markdown: per method and difficulty (with measured agents), :func:`search_metrics`."""
-    lines = ["| method | difficulty | agents | goal sighted | SR once sighted (homing) "
-             "| SR never sighted | collision steps, homing failed |",
-             "|---|---|---:|---:|---:|---:|---:|"]
+    lines = ["| method | difficulty | agents | "
+             + " | ".join(header for _, header, _ in SEARCH_COLUMNS) + " |",
+             "|---|---|---:|" + "---:|" * len(SEARCH_COLUMNS)]
     for method, recs in records.items():
         for g, m in search_groups(recs).items():
             if not m["agents"]:
                 continue
-            cells = ["–" if math.isnan(m[k]) else f"{m[k]:{fmt}}" for k, fmt in SEARCH_COLUMNS]
+            cells = ["–" if math.isnan(m[k]) else f"{m[k]:{fmt}}"
+                     for k, _, fmt in SEARCH_COLUMNS]
             lines.append(f"| {method} | {g} | {int(m['agents'])} | " + " | ".join(cells)
                          + " |")
     return "\n".join(lines) + "\n"
