@@ -505,6 +505,20 @@ class ActorCritic(nn.Module):
         return EvaluateOutput(dist.log_prob(raw_actions), dist.entropy(), run.value,
                               target_log_prob, belief)
 
+    @torch.no_grad()
+    def mean_actions(self, obs: Mapping[str, Tensor], state: AgentState,
+                     episode_start: Tensor, percepts: Mapping[str, Tensor] | None = None
+                     ) -> tuple[Tensor, AgentState]:
+        """The deterministic actions :meth:`act` would take along stored sequences.
+
+        Inputs as :meth:`evaluate_actions`. Returns the raw (unclipped) actions
+        ``(T, E, N, 2)`` and the state after the last step (its map ``grid`` and ``pose``
+        stay as given when the stored percepts hold the map tracking: nothing reads them
+        then).
+        """
+        run = self._unroll(obs, state, episode_start, percepts)
+        return action_mean(action_distribution(run.mean, run.log_std, run.logits)), run.state
+
     def _unroll(self, obs: Mapping[str, Tensor], state: AgentState, starts: Tensor,
                 stored: Mapping[str, Tensor] | None) -> Unrolled:
         """``T`` decision steps from ``(T, E, N, ...)`` inputs (see :meth:`forward`)."""

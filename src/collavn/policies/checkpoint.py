@@ -122,6 +122,7 @@ LATER_FIELDS: dict[str, Any] = {
     "imitation.lr_decay": False,
     "imitation.homing_weight": 1.0,
     "run.train_scenes": 25,
+    "ppo.bc_target": "expert",
 }
 
 

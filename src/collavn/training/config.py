@@ -123,6 +123,12 @@ class PPOConfig:
     the goal is in sight."""
     bc_decay: float = 1.0
     """The behaviour-cloning weight is ``bc_coef × bc_decay ** update`` (1 = constant)."""
+    bc_target: Literal["expert", "init"] = "expert"
+    """Whose actions the behaviour-cloning term imitates: ``expert`` (the expert above,
+    run beside the policy) or ``init`` (the ``--init-from`` policy's own mean action, a
+    frozen copy replayed over each rollout's stored features with its own recurrent
+    state: an anchor that keeps the fine-tuned mean action near the one it started from
+    where the reward does not pay to move it; no expert, no privileged observations)."""
     start_std: float = 0.0
     """Set the policy's σ (every action dimension) to this when a run starts, after
     ``--init-from`` (0 = keep the model's initial or the checkpoint's σ; a resumed run
@@ -136,6 +142,8 @@ class PPOConfig:
         check_number("--ppo.bc-coef", self.bc_coef, allow_minimum=True)
         check_number("--ppo.bc-decay", self.bc_decay)
         check_number("--ppo.start-std", self.start_std, allow_minimum=True)
+        if self.bc_target not in ("expert", "init"):
+            raise ConfigError(f"--ppo.bc-target must be expert or init, got {self.bc_target!r}")
         if self.bc_decay > 1:
             raise ConfigError(f"--ppo.bc-decay must be in (0, 1], got {self.bc_decay}")
         check_number("--ppo.comm-lr-scale", self.comm_lr_scale, allow_minimum=True)
@@ -346,6 +354,10 @@ class TrainConfig:
                         goal_shape=(3, self.env.goal_size, self.env.goal_size),
                         comm=replace(self.model.comm, variant=self.method_spec.comm))
         object.__setattr__(self, "model", model)
+        if (self.ppo.bc_target == "init" and self.ppo.bc_coef > 0
+                and not self.method_spec.imitation and not self.run.init_from):
+            raise ConfigError("--ppo.bc-target init imitates the --init-from policy: give "
+                              "--init-from CHECKPOINT (or use --ppo.bc-target expert)")
 
     @property
     def method_spec(self) -> MethodSpec:

@@ -33,8 +33,9 @@ class PPOStats:
         clip_fraction: Fraction of ratios outside ``[1 − ε, 1 + ε]``.
         loss: The total optimised loss.
         epochs: Epochs run (fewer than ``update_epochs`` when ``target_kl`` stopped them).
-        bc_loss: Negative log-likelihood of the expert's actions (0 without
-            ``--ppo.bc-coef``).
+        bc_loss: Negative log-likelihood of the behaviour-cloning targets (the
+            expert's actions, or the ``--init-from`` policy's with ``--ppo.bc-target
+            init``; 0 without ``--ppo.bc-coef``).
         bc_weight: The weight it had in ``loss``.
         grad_norm: Norm of the whole gradient before clipping.
         comm_grad_norm: Norm of the communication parameters' part of it (0 without
@@ -70,7 +71,7 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
 
     ``critic_only``: the optimised loss is the value term alone (statistics as usual).
     ``bc_weight`` > 0 adds ``bc_weight × −log π(a* | s)`` over active steps, ``a*`` the
-    expert's actions stored in ``batch.expert_actions``.
+    targets stored in ``batch.expert_actions`` (the expert's actions or the anchor's).
     """
     if bc_weight > 0 and batch.expert_actions is None:
         raise ValueError("a behaviour-cloning weight needs a rollout with expert_actions "

@@ -50,7 +50,8 @@ class Rollout:
         truncated: ``(T, E, N)`` bool.
         initial_state: The recurrent state before step 0 (detached).
         last_value: ``(E, N)`` value of the observation after step ``T - 1``.
-        expert_actions: ``(T, E, N, 2)`` the expert's actions in the visited states, for
+        expert_actions: ``(T, E, N, 2)`` the expert's actions in the visited states (or,
+            with ``--ppo.bc-target init``, the ``--init-from`` policy's mean actions), for
             PPO's behaviour-cloning term (``--ppo.bc-coef``); ``None`` without one.
         belief_labels: ``(T, E, N, 2)`` where the goal was (sector, log distance; see
             :mod:`collavn.models.belief`), for the goal-belief head; ``None`` without it.

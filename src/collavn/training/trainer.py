@@ -21,6 +21,7 @@ directory is moved aside).
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import time
@@ -93,6 +94,9 @@ class Run:
         k: deque(maxlen=200) for k in ("success", "return", "length")})
     demos: deque[Rollout] = field(default_factory=deque)
     scenes: list[Scene] = field(default_factory=list)
+    anchor: ActorCritic | None = None
+    """A frozen copy of the ``--init-from`` policy (``--ppo.bc-target init``)."""
+    anchor_state: AgentState | None = None
     started: float = field(default_factory=time.perf_counter)
 
     @property
@@ -118,8 +122,14 @@ def env_config(cfg: TrainConfig) -> EnvConfig:
 
 
 def has_expert(cfg: TrainConfig) -> bool:
-    """The run consults an expert: ``il``, or PPO with a behaviour-cloning term."""
-    return cfg.method_spec.imitation or cfg.ppo.bc_coef > 0
+    """The run consults an expert: ``il``, or PPO with a behaviour-cloning term on it."""
+    return cfg.method_spec.imitation or (cfg.ppo.bc_coef > 0 and cfg.ppo.bc_target == "expert")
+
+
+def has_anchor(cfg: TrainConfig) -> bool:
+    """PPO's behaviour-cloning term imitates the ``--init-from`` policy's mean action."""
+    return (not cfg.method_spec.imitation and cfg.ppo.bc_coef > 0
+            and cfg.ppo.bc_target == "init")
 
 
 def set_train_mode(model: nn.Module) -> None:
@@ -159,8 +169,11 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
                     env_config(cfg), seed=info.seed(cfg.run.seed))
     torch.manual_seed(cfg.run.seed)
     model = ActorCritic(cfg.model, device=device)
+    anchor = None
     if cfg.run.init_from:
         initialise_from(model, cfg, cfg.run.init_from)
+        if has_anchor(cfg):  # before anything changes the model (σ, a resume)
+            anchor = copy.deepcopy(model).requires_grad_(False)
     if cfg.ppo.start_std > 0 and not cfg.method_spec.imitation:
         with torch.no_grad():
             for tower in model.towers:
@@ -168,6 +181,8 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
                 tower.log_std.fill_(math.log(cfg.ppo.start_std))
     if encoder is not None:
         install_encoder(model, encoder, cfg.env.camera_height)
+        if anchor is not None:
+            install_encoder(anchor, encoder, cfg.env.camera_height)
     distributed.broadcast_parameters(model)
     set_train_mode(model)
     optimizer = torch.optim.Adam(parameter_groups(model, cfg), lr=cfg.learning_rate, eps=1e-5)
@@ -175,7 +190,10 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
                       distributed.average_gradients if info.enabled else None)
     expert = (Expert(cfg.imitation, env.scenes, env.num_envs, env.num_agents, cfg.run.seed)
               if has_expert(cfg) else None)
-    return Run(cfg, info, device, env, model, optimizer, maps, expert, scenes=scenes)
+    if anchor is not None:
+        anchor.eval()
+    return Run(cfg, info, device, env, model, optimizer, maps, expert, scenes=scenes,
+               anchor=anchor)
 
 
 def parameter_groups(model: ActorCritic, cfg: TrainConfig) -> list[dict[str, Any]]:
@@ -325,6 +343,8 @@ def sync_point(run: Run) -> None:
                             run.env.num_agents, seed)
     run.obs, _ = run.env.reset(seed=seed)
     run.state = run.model.initial_state(run.env.num_envs, run.env.num_agents)
+    if run.anchor is not None:
+        run.anchor_state = run.anchor.initial_state(run.env.num_envs, run.env.num_agents)
     run.returns = np.zeros((run.env.num_envs, run.env.num_agents))
     run.demos = deque(maxlen=run.cfg.imitation.buffer_rollouts)
 
@@ -357,7 +377,8 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
             rollout = Rollout.allocate(
                 cfg.ppo.rollout_steps, {k: obs_t[k] for k in model.replay_keys()},
                 run.state, {k: out.percepts[k] for k in model.stored_percepts},
-                expert=run.expert is not None and not imitating, belief=believing,
+                expert=(run.expert is not None or run.anchor is not None) and not imitating,
+                belief=believing,
                 weights=weighing)
         actions = out.action.cpu().numpy().astype(np.float64)
         stored = out.raw_action
@@ -434,12 +455,28 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
                                       rollout.truncated, rollout.last_value, cfg.ppo.gamma,
                                       cfg.ppo.gae_lambda)
     warmup = run.iteration < cfg.ppo.critic_warmup
+    if run.anchor is not None:
+        anchor_targets(run, rollout)
     bc_weight = cfg.ppo.bc_coef * cfg.ppo.bc_decay ** run.iteration
     stats = ppo_update(run.model, run.optimizer, rollout, advantages, returns, cfg.ppo,
                        run.generator, sync, critic_only=warmup, bc_weight=bc_weight)
     run.maps.train_owed()  # between updates: the next rollout is scored as collected
     return {f"loss/{k}": v for k, v in stats.__dict__.items()} | {
         "loss/critic_warmup": float(warmup)}
+
+
+def anchor_targets(run: Run, rollout: Rollout) -> None:
+    """Fill ``rollout.expert_actions`` with the anchor policy's mean actions.
+
+    The frozen ``--init-from`` copy replays the rollout's stored inputs from its own
+    recurrent state, carried from rollout to rollout (and reset with the policy's at
+    sync points), so it acts as if it had driven along the states the policy visited.
+    """
+    assert run.anchor is not None and run.anchor_state is not None
+    assert rollout.expert_actions is not None
+    actions, run.anchor_state = run.anchor.mean_actions(
+        rollout.obs, run.anchor_state, rollout.episode_start, rollout.percepts)
+    rollout.expert_actions.copy_(actions)
 
 
 def scale_learning_rate(optimizer: torch.optim.Optimizer, fraction: float) -> None:

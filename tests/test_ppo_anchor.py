@@ -1,0 +1,94 @@
+"""PPO's anchor (``--ppo.bc-target init``): behaviour cloning on the ``--init-from`` policy."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import pytest
+import torch
+
+from collavn.errors import ConfigError
+from collavn.training.config import PPOConfig
+from collavn.training.distributed import DistInfo
+from collavn.training.trainer import (
+    anchor_targets,
+    build_run,
+    collect_rollout,
+    env_config,
+    learn,
+    sync_point,
+    train,
+)
+from training_fixtures import tiny_config
+
+
+@pytest.fixture(scope="module")
+def il_checkpoint(tmp_path_factory):
+    out = tmp_path_factory.mktemp("anchor") / "il"
+    train(tiny_config(method="il", out=str(out)).with_run(total_steps=16))
+    return out / "checkpoint.pt"
+
+
+def _anchored(il_checkpoint, tmp_path, method: str = "ours", rollout_steps: int = 6):
+    cfg = tiny_config(method=method, out=str(tmp_path / "ft"), rollout_steps=rollout_steps
+                      ).with_run(init_from=str(il_checkpoint))
+    cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(
+        cfg.ppo, bc_coef=1.0, bc_target="init", start_std=0.1, lr=3e-3))
+    torch.set_num_threads(1)
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    sync_point(run)
+    return cfg, run
+
+
+def test_anchor_targets_are_the_init_policys_mean_actions_along_the_rollouts(
+        il_checkpoint, tmp_path):
+    cfg, run = _anchored(il_checkpoint, tmp_path)
+    # no expert beside the policy, nothing privileged in the observations
+    assert run.expert is None and not env_config(cfg).privileged
+    assert run.anchor is not None and run.anchor is not run.model
+    policy = copy.deepcopy(run.model)  # not updated below: it still is the anchor's policy
+    for _ in range(2):  # the second rollout starts from the state the first one left
+        rollout, _ = collect_rollout(run)
+        assert rollout.expert_actions is not None and not rollout.expert_actions.any()
+        anchor_targets(run, rollout)
+        expected, _ = policy.mean_actions(rollout.obs, rollout.initial_state,
+                                          rollout.episode_start, rollout.percepts)
+        torch.testing.assert_close(rollout.expert_actions, expected, rtol=0, atol=1e-5)
+        # the policy samples with σ = 0.1 around the same means: near, not equal
+        active = rollout.active
+        gap = (rollout.raw_actions - rollout.expert_actions)[active].abs()
+        assert 0 < float(gap.mean()) < 0.5
+
+
+def test_anchor_stays_frozen_while_ppo_moves_the_policy(il_checkpoint, tmp_path):
+    _, run = _anchored(il_checkpoint, tmp_path, method="no-com")
+    assert run.anchor is not None
+    before = {k: v.clone() for k, v in run.anchor.state_dict().items()}
+    policy_before = {k: v.clone() for k, v in run.model.state_dict().items()}
+    assert not any(p.requires_grad for p in run.anchor.parameters())
+    nll_at_target = 2 * (math.log(0.1) + 0.5 * math.log(2 * math.pi))
+    for _ in range(2):
+        rollout, _ = collect_rollout(run)
+        losses = learn(run, rollout)
+        run.iteration += 1
+        # −log N(a*; μ, σ = 0.1) over 2 dims is smallest, 2 (log σ + ½ log 2π), at μ = a*:
+        # the first update starts there (policy = anchor) and moves only a little away
+        assert losses["loss/bc_weight"] == 1.0
+        assert nll_at_target - 1e-4 <= losses["loss/bc_loss"] < nll_at_target + 0.5
+    after = run.anchor.state_dict()
+    assert all(torch.equal(before[k], after[k]) for k in before)
+    assert any(not torch.equal(policy_before[k], v) for k, v in run.model.state_dict().items())
+
+
+def test_anchor_needs_init_from_and_a_known_target(tmp_path):
+    cfg = tiny_config(method="no-com", out=str(tmp_path / "x"))
+    with pytest.raises(ConfigError, match="--init-from"):
+        dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, bc_coef=0.5,
+                                                         bc_target="init"))
+    with pytest.raises(ConfigError, match=r"--ppo\.bc-target"):
+        PPOConfig(bc_target="teacher")  # type: ignore[arg-type]
+    # without a weight nothing is imitated, so no checkpoint is needed
+    plain = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, bc_target="init"))
+    assert build_run(plain, DistInfo(), torch.device("cpu")).anchor is None
