@@ -6,6 +6,7 @@ import copy
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -92,3 +93,62 @@ def test_anchor_needs_init_from_and_a_known_target(tmp_path):
     # without a weight nothing is imitated, so no checkpoint is needed
     plain = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, bc_target="init"))
     assert build_run(plain, DistInfo(), torch.device("cpu")).anchor is None
+
+
+def test_sighted_steps_weigh_the_anchor_only_once_the_goal_was_in_sight(
+        il_checkpoint, tmp_path, monkeypatch):
+    import collavn.training.trainer as trainer
+    from collavn.policies.oracle import track_sighting
+    from collavn.training.ppo import ppo_loss
+    from collavn.training.rollout import compute_gae
+
+    cfg = tiny_config(method="no-com", out=str(tmp_path / "ft"), rollout_steps=12
+                      ).with_run(init_from=str(il_checkpoint))
+    cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(
+        cfg.ppo, bc_coef=1.0, bc_target="init", bc_steps="sighted"))
+    assert env_config(cfg).privileged  # the trainer reads poses; the policy does not
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    sync_point(run)
+    flags = []
+
+    def recorded(seen, obs, scenes, sight):
+        assert sight == cfg.imitation.sight
+        flags.append(track_sighting(seen, obs, scenes, sight))
+        return flags[-1]
+
+    monkeypatch.setattr(trainer, "track_sighting", recorded)
+    # agent 0 of env 0 is shown a goal 50 m away at steps 0–2, its own position after
+    step = run.env.step
+
+    def place_goal(obs):
+        far = len(flags) < 3
+        obs["goal_position"][0, 0] = obs["world_pose"][0, 0, :2] + (50.0 if far else 0.0)
+        return obs
+
+    def stepped(actions):
+        obs, *rest = step(actions)
+        return (place_goal(obs), *rest)
+
+    place_goal(run.obs)
+    monkeypatch.setattr(run.env, "step", stepped)
+    rollout, _ = collect_rollout(run)
+    assert rollout.weights is not None and len(flags) == cfg.ppo.rollout_steps
+    np.testing.assert_array_equal(rollout.weights.numpy(), np.stack(flags).astype(np.float32))
+    assert bool(rollout.active[:4, 0, 0].all()) and not rollout.episode_start[1:4, 0, 0].any()
+    assert rollout.weights[:4, 0, 0].tolist() == [0.0, 0.0, 0.0, 1.0]
+    anchor_targets(run, rollout)
+    adv, ret = compute_gae(rollout.rewards, rollout.values, rollout.terminated,
+                           rollout.truncated, rollout.last_value, 0.99, 0.95)
+    weighted = ppo_loss(run.model, rollout, adv, ret, cfg.ppo, bc_weight=1.0)[1]["bc_loss"]
+    with torch.no_grad():
+        out = run.model.evaluate_actions(rollout.obs, rollout.initial_state,
+                                         rollout.episode_start, rollout.raw_actions,
+                                         rollout.percepts, rollout.expert_actions)
+    assert out.target_log_prob is not None
+    active = rollout.active
+    # a mean over every active step, searching ones adding 0
+    expected = -float((out.target_log_prob * rollout.weights)[active].sum()) / int(active.sum())
+    assert weighted == pytest.approx(expected, rel=1e-5)
+    rollout.weights = None  # without weights: every step counts
+    plain = ppo_loss(run.model, rollout, adv, ret, cfg.ppo, bc_weight=1.0)[1]["bc_loss"]
+    assert plain == pytest.approx(-float(out.target_log_prob[active].mean()), rel=1e-5)

@@ -218,6 +218,7 @@ def test_a_checkpoint_from_before_the_readout_loads_with_it_off(tmp_path):
     del config["model"]["goal_belief"]
     del config["imitation"]["belief_coef"]
     del config["ppo"]["bc_target"]
+    del config["ppo"]["bc_steps"]
     save_checkpoint(tmp_path / "old.pt", {"config": config, "update": 0,
                                           "model": ActorCritic(model_cfg).state_dict()})
     policy, _ = load_policy(tmp_path / "old.pt")
@@ -227,7 +228,7 @@ def test_a_checkpoint_from_before_the_readout_loads_with_it_off(tmp_path):
     assert policy.model.cfg.goal_belief == 0 and policy.model.towers[0].goal_belief is None
     old = saved_config(load_checkpoint(tmp_path / "old.pt"), "old.pt")
     assert old.ppo.target_kl == 0.0 and old.imitation.belief_coef == 1.0
-    assert old.ppo.bc_target == "expert"
+    assert old.ppo.bc_target == "expert" and old.ppo.bc_steps == "all"
     # one from before the ring readout had the pooled heads
     config = cfg.to_dict()
     del config["model"]["readout"]["ring"]

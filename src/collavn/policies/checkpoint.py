@@ -123,6 +123,7 @@ LATER_FIELDS: dict[str, Any] = {
     "imitation.homing_weight": 1.0,
     "run.train_scenes": 25,
     "ppo.bc_target": "expert",
+    "ppo.bc_steps": "all",
 }
 
 

@@ -130,3 +130,19 @@ def in_sight(scene: Scene, position: np.ndarray, goal: np.ndarray, sight: float)
     The seeker's switch from searching to homing, and the evaluation's ``sighted_step``.
     """
     return bool(np.linalg.norm(goal - position) <= sight and in_view(scene, position, goal))
+
+
+def track_sighting(seen: np.ndarray, obs: dict[str, np.ndarray], scenes: Sequence[Scene],
+                   sight: float) -> np.ndarray:
+    """``(E, N)`` bool: the goal has been :func:`in_sight` this episode (a latch).
+
+    ``seen`` is the flag before this step; a new episode (``obs["step"] == 0``) clears it
+    and an agent that no longer runs keeps its own. Reads the privileged observations
+    (``EnvConfig(privileged=True)``); returns a new array.
+    """
+    seen = seen & (obs["step"] > 0)
+    pose, goal = obs["world_pose"], obs["goal_position"]
+    for e, n in zip(*np.nonzero(obs["active"] & ~seen), strict=True):
+        scene = scenes[int(obs["scene_index"][e])]
+        seen[e, n] = in_sight(scene, pose[e, n, :2], goal[e, n], sight)
+    return seen

@@ -37,7 +37,7 @@ from collavn.errors import CollavnError
 from collavn.metrics import SIGHT_DISTANCE
 from collavn.policies.base import CommStats
 from collavn.policies.explorer import ExplorerPolicy, ExplorerState
-from collavn.policies.oracle import OraclePolicy, in_sight
+from collavn.policies.oracle import OraclePolicy, track_sighting
 from collavn.scenes.scene import Scene
 from collavn.simulation.kinematics import AgentParams
 
@@ -86,16 +86,13 @@ class SeekerPolicy:
                            "EnvConfig(privileged=True)")
         actions, state.explore = self.explorer.act(obs, state.explore)
         pose, goal, active = obs["world_pose"], obs["goal_position"], obs["active"]
-        state.seen &= obs["step"] > 0  # a new episode starts unseen
-        for e, n in zip(*np.nonzero(active), strict=True):
+        state.seen = track_sighting(state.seen, obs, self.scenes, self.sight)
+        for e, n in zip(*np.nonzero(active & state.seen), strict=True):
             scene = self.scenes[int(obs["scene_index"][e])]
-            if not state.seen[e, n]:
-                state.seen[e, n] = in_sight(scene, pose[e, n, :2], goal[e, n], self.sight)
-            if state.seen[e, n]:
-                try:
-                    actions[e, n] = self.oracle.act_one(scene, pose[e], n, goal[e, n])
-                except CollavnError:  # no path from here (pushed off the grid): explore
-                    pass
+            try:
+                actions[e, n] = self.oracle.act_one(scene, pose[e], n, goal[e, n])
+            except CollavnError:  # no path from here (pushed off the grid): explore
+                pass
         self.executed(state, actions, active)
         return actions, state
 

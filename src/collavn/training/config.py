@@ -129,6 +129,15 @@ class PPOConfig:
     frozen copy replayed over each rollout's stored features with its own recurrent
     state: an anchor that keeps the fine-tuned mean action near the one it started from
     where the reward does not pay to move it; no expert, no privileged observations)."""
+    bc_steps: Literal["all", "sighted"] = "all"
+    """The steps the behaviour-cloning term weighs: ``all`` active steps, or ``sighted``
+    ones only — after the agent's goal has been in sight this episode (within
+    ``--imitation.sight`` metres along a navigable straight line, the seeker's switch and
+    the evaluation's ``goal sighted``). The trainer reads the privileged poses for this,
+    the policy never does. With ``--ppo.bc-target init`` it anchors the homing the
+    ``--init-from`` policy learnt and leaves PPO free to change how it searches. The term
+    stays a mean over all active steps (searching ones add 0), so ``--ppo.bc-coef`` pulls
+    each homing step as hard as with ``all``."""
     start_std: float = 0.0
     """Set the policy's σ (every action dimension) to this when a run starts, after
     ``--init-from`` (0 = keep the model's initial or the checkpoint's σ; a resumed run
@@ -144,6 +153,8 @@ class PPOConfig:
         check_number("--ppo.start-std", self.start_std, allow_minimum=True)
         if self.bc_target not in ("expert", "init"):
             raise ConfigError(f"--ppo.bc-target must be expert or init, got {self.bc_target!r}")
+        if self.bc_steps not in ("all", "sighted"):
+            raise ConfigError(f"--ppo.bc-steps must be all or sighted, got {self.bc_steps!r}")
         if self.bc_decay > 1:
             raise ConfigError(f"--ppo.bc-decay must be in (0, 1], got {self.bc_decay}")
         check_number("--ppo.comm-lr-scale", self.comm_lr_scale, allow_minimum=True)

@@ -71,7 +71,9 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
 
     ``critic_only``: the optimised loss is the value term alone (statistics as usual).
     ``bc_weight`` > 0 adds ``bc_weight × −log π(a* | s)`` over active steps, ``a*`` the
-    targets stored in ``batch.expert_actions`` (the expert's actions or the anchor's).
+    targets stored in ``batch.expert_actions`` (the expert's actions or the anchor's),
+    each step's term times ``batch.weights`` when the rollout has them
+    (``--ppo.bc-steps sighted``: 1 once the goal was in sight, else 0).
     """
     if bc_weight > 0 and batch.expert_actions is None:
         raise ValueError("a behaviour-cloning weight needs a rollout with expert_actions "
@@ -92,8 +94,10 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
     policy_loss = masked_mean(surrogate, mask)
     value_loss = 0.5 * masked_mean((out.value - returns) ** 2, mask)
     entropy = masked_mean(out.entropy, mask)
-    bc_loss = (-masked_mean(out.target_log_prob, mask) if out.target_log_prob is not None
-               else torch.zeros(()))
+    bc_loss = torch.zeros(())
+    if out.target_log_prob is not None:  # a mean over active steps, weighted per step
+        weights = 1.0 if batch.weights is None else batch.weights
+        bc_loss = -(masked_mean(out.target_log_prob * weights, mask))
     loss = (cfg.vf_coef * value_loss if critic_only
             else policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
             + bc_weight * bc_loss)

@@ -56,7 +56,8 @@ class Rollout:
         belief_labels: ``(T, E, N, 2)`` where the goal was (sector, log distance; see
             :mod:`collavn.models.belief`), for the goal-belief head; ``None`` without it.
         weights: ``(T, E, N)`` per-step weights of ``il``'s likelihood
-            (``--imitation.homing-weight``); ``None``: every step weighs 1.
+            (``--imitation.homing-weight``) or of PPO's behaviour-cloning term
+            (``--ppo.bc-steps sighted``); ``None``: every step weighs 1.
     """
 
     obs: dict[str, Tensor]

@@ -51,6 +51,7 @@ from collavn.policies.checkpoint import (
     save_checkpoint,
     tally,
 )
+from collavn.policies.oracle import track_sighting
 from collavn.scenes import Scene, load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.threads import apply_threads
@@ -97,6 +98,8 @@ class Run:
     anchor: ActorCritic | None = None
     """A frozen copy of the ``--init-from`` policy (``--ppo.bc-target init``)."""
     anchor_state: AgentState | None = None
+    sighted: np.ndarray | None = None
+    """``(E, N)`` the goal has been in sight this episode (``--ppo.bc-steps sighted``)."""
     started: float = field(default_factory=time.perf_counter)
 
     @property
@@ -114,16 +117,23 @@ def env_config(cfg: TrainConfig) -> EnvConfig:
     """
     m = cfg.model.map
     seeker = has_expert(cfg) and cfg.imitation.expert == "seeker"
+    sighting = bc_on_sighted_steps(cfg)
     return replace(cfg.env, depth=cfg.model.reads_depth or seeker,
                    free_space=cfg.model.free_space_input,
                    explore_action=cfg.model.explore_prior, gt_map=cfg.mapping.enabled,
                    gt_map_size=round(m.local_size * m.resolution / 0.1),
-                   privileged=has_expert(cfg))
+                   privileged=has_expert(cfg) or sighting)
 
 
 def has_expert(cfg: TrainConfig) -> bool:
     """The run consults an expert: ``il``, or PPO with a behaviour-cloning term on it."""
     return cfg.method_spec.imitation or (cfg.ppo.bc_coef > 0 and cfg.ppo.bc_target == "expert")
+
+
+def bc_on_sighted_steps(cfg: TrainConfig) -> bool:
+    """PPO's behaviour-cloning term weighs only steps after the goal was in sight."""
+    return (not cfg.method_spec.imitation and cfg.ppo.bc_coef > 0
+            and cfg.ppo.bc_steps == "sighted")
 
 
 def has_anchor(cfg: TrainConfig) -> bool:
@@ -345,6 +355,8 @@ def sync_point(run: Run) -> None:
     run.state = run.model.initial_state(run.env.num_envs, run.env.num_agents)
     if run.anchor is not None:
         run.anchor_state = run.anchor.initial_state(run.env.num_envs, run.env.num_agents)
+    if bc_on_sighted_steps(run.cfg):
+        run.sighted = np.zeros((run.env.num_envs, run.env.num_agents), dtype=bool)
     run.returns = np.zeros((run.env.num_envs, run.env.num_agents))
     run.demos = deque(maxlen=run.cfg.imitation.buffer_rollouts)
 
@@ -365,6 +377,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     # the goal-belief head learns in il, from the privileged observations the expert reads
     believing = imitating and bool(model.cfg.goal_belief)
     weighing = imitating and cfg.imitation.homing_weight != 1.0
+    sighting = run.sighted is not None  # PPO's BC term weighs the sighted steps only
     homing: list[int] = []  # per step, active agents the expert homes (seeker only)
     comm, scores = CommStats(), ScoreTally()
     start = time.perf_counter()
@@ -379,7 +392,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
                 run.state, {k: out.percepts[k] for k in model.stored_percepts},
                 expert=(run.expert is not None or run.anchor is not None) and not imitating,
                 belief=believing,
-                weights=weighing)
+                weights=weighing or sighting)
         actions = out.action.cpu().numpy().astype(np.float64)
         stored = out.raw_action
         if run.expert is not None:
@@ -399,6 +412,11 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
                 assert rollout.expert_actions is not None
                 rollout.expert_actions[t] = expert
             run.expert.executed(actions, run.obs["active"])
+        if run.sighted is not None:
+            run.sighted = track_sighting(run.sighted, run.obs, run.env.scenes,
+                                         cfg.imitation.sight)
+            assert rollout.weights is not None
+            rollout.weights[t] = torch.as_tensor(run.sighted, device=device)
         rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value, out.percepts)
         if rollout.belief_labels is not None:
             rollout.belief_labels[t] = torch.as_tensor(belief_labels(
