@@ -97,7 +97,7 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
     bc_loss = torch.zeros(())
     if out.target_log_prob is not None:  # a mean over active steps, weighted per step
         weights = 1.0 if batch.weights is None else batch.weights
-        bc_loss = -(masked_mean(out.target_log_prob * weights, mask))
+        bc_loss = -masked_mean(out.target_log_prob * weights, mask)
     loss = (cfg.vf_coef * value_loss if critic_only
             else policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
             + bc_weight * bc_loss)
