@@ -365,8 +365,7 @@ class TrainConfig:
                         goal_shape=(3, self.env.goal_size, self.env.goal_size),
                         comm=replace(self.model.comm, variant=self.method_spec.comm))
         object.__setattr__(self, "model", model)
-        if (self.ppo.bc_target == "init" and self.ppo.bc_coef > 0
-                and not self.method_spec.imitation and not self.run.init_from):
+        if self.ppo_clones and self.ppo.bc_target == "init" and not self.run.init_from:
             raise ConfigError("--ppo.bc-target init imitates the --init-from policy: give "
                               "--init-from CHECKPOINT (or use --ppo.bc-target expert)")
 
@@ -374,6 +373,11 @@ class TrainConfig:
     def method_spec(self) -> MethodSpec:
         """What ``method`` is made of."""
         return METHODS[self.method]
+
+    @property
+    def ppo_clones(self) -> bool:
+        """PPO's loss has a behaviour-cloning term (``--ppo.bc-coef`` > 0, not ``il``)."""
+        return not self.method_spec.imitation and self.ppo.bc_coef > 0
 
     @property
     def learning_rate(self) -> float:

@@ -98,6 +98,7 @@ class Run:
     anchor: ActorCritic | None = None
     """A frozen copy of the ``--init-from`` policy (``--ppo.bc-target init``)."""
     anchor_state: AgentState | None = None
+    """The anchor's recurrent state after the last rollout it replayed."""
     sighted: np.ndarray | None = None
     """``(E, N)`` the goal has been in sight this episode (``--ppo.bc-steps sighted``)."""
     started: float = field(default_factory=time.perf_counter)
@@ -127,19 +128,17 @@ def env_config(cfg: TrainConfig) -> EnvConfig:
 
 def has_expert(cfg: TrainConfig) -> bool:
     """The run consults an expert: ``il``, or PPO with a behaviour-cloning term on it."""
-    return cfg.method_spec.imitation or (cfg.ppo.bc_coef > 0 and cfg.ppo.bc_target == "expert")
+    return cfg.method_spec.imitation or (cfg.ppo_clones and cfg.ppo.bc_target == "expert")
 
 
 def bc_on_sighted_steps(cfg: TrainConfig) -> bool:
     """PPO's behaviour-cloning term weighs only steps after the goal was in sight."""
-    return (not cfg.method_spec.imitation and cfg.ppo.bc_coef > 0
-            and cfg.ppo.bc_steps == "sighted")
+    return cfg.ppo_clones and cfg.ppo.bc_steps == "sighted"
 
 
 def has_anchor(cfg: TrainConfig) -> bool:
     """PPO's behaviour-cloning term imitates the ``--init-from`` policy's mean action."""
-    return (not cfg.method_spec.imitation and cfg.ppo.bc_coef > 0
-            and cfg.ppo.bc_target == "init")
+    return cfg.ppo_clones and cfg.ppo.bc_target == "init"
 
 
 def set_train_mode(model: nn.Module) -> None:
@@ -183,7 +182,7 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
     if cfg.run.init_from:
         initialise_from(model, cfg, cfg.run.init_from)
         if has_anchor(cfg):  # before anything changes the model (σ, a resume)
-            anchor = copy.deepcopy(model).requires_grad_(False)
+            anchor = copy.deepcopy(model).requires_grad_(False).eval()
     if cfg.ppo.start_std > 0 and not cfg.method_spec.imitation:
         with torch.no_grad():
             for tower in model.towers:
@@ -200,8 +199,6 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
                       distributed.average_gradients if info.enabled else None)
     expert = (Expert(cfg.imitation, env.scenes, env.num_envs, env.num_agents, cfg.run.seed)
               if has_expert(cfg) else None)
-    if anchor is not None:
-        anchor.eval()
     return Run(cfg, info, device, env, model, optimizer, maps, expert, scenes=scenes,
                anchor=anchor)
 
