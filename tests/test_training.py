@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from collavn.cli.train import parse
+from collavn.configs import join_docstring_lines
 from collavn.errors import CollavnError, ConfigError
 from collavn.training.config import RunConfig, TrainConfig
 from collavn.training.distributed import DistInfo
@@ -133,6 +134,31 @@ def test_every_config_field_is_a_flag_with_a_docstring_in_help(capsys):
                  "--model.hidden-size", "--model.comm.memory-slots"):
         assert flag in text
     assert "--model.panorama-shape" not in text  # derived from env, not a flag
+
+
+def test_help_joins_a_docstring_s_source_lines(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "80")
+    with pytest.raises(SystemExit):
+        parse(["--help"])
+    lines = capsys.readouterr().out.splitlines()
+    for flag in ("--ppo.bc-coef FLOAT", "--ppo.start-std FLOAT"):
+        start = next(i for i, ln in enumerate(lines) if flag in ln) + 1
+        text = []
+        for ln in lines[start:]:
+            ln = ln.strip("│ ")  # a panel's borders, when the output is a terminal
+            if not ln or ln.startswith("--") or "─" in ln:
+                break
+            text.append(ln)
+        # wrapped by the terminal's width, not at the docstring's source line ends
+        # (those left lines like "log-likelihood of" and "after")
+        assert len(text) >= 4 and min(len(t) for t in text[:-1]) >= 45, text
+
+
+def test_join_docstring_lines_keeps_paragraphs_and_list_items():
+    doc = "First line\n    goes on.\n\n    Second paragraph:\n    - one\n      item\n    - two\n"
+    assert join_docstring_lines(doc) == (
+        "First line goes on.\n\nSecond paragraph:\n- one item\n- two")
+    assert join_docstring_lines("one line") == "one line"
 
 
 def _fixed_batch(method: str, num_envs: int = 2, **model):

@@ -12,6 +12,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
+import textwrap
 import typing
 from collections.abc import Sequence
 from typing import Any, TypeVar
@@ -100,6 +102,47 @@ def check_number(name: str, value: float, minimum: float = 0.0, *,
         raise ConfigError(f"{name} must be a finite number {bound}, got {value!r}")
 
 
+_LIST_ITEM = re.compile(r"^([-*•]|\d+[.)])\s")
+
+
+def join_docstring_lines(text: str) -> str:
+    """A docstring as help text: source line breaks joined, paragraphs and list items kept.
+
+    An attribute docstring's continuation lines carry the class body's indentation; the
+    first line does not. Lines are dedented after the first, then each line is joined to
+    the one before it with a space unless it is blank (a paragraph break, kept as one
+    blank line) or starts a list item (``-``, ``*``, ``•``, ``1.``, ``1)``).
+    """
+    first, _, rest = text.partition("\n")
+    lines = [first.strip(), *textwrap.dedent(rest).splitlines()] if rest else [first.strip()]
+    out: list[str] = []
+    for line in (ln.rstrip() for ln in lines):
+        if not line:
+            if out and out[-1] != "":
+                out.append("")
+        elif out and out[-1] != "" and not _LIST_ITEM.match(line.lstrip()):
+            out[-1] += " " + line.strip()
+        else:
+            out.append(line)
+    return "\n".join(out).strip("\n")
+
+
+def use_tyro() -> Any:
+    """The ``tyro`` module, set to join a docstring's source line breaks in ``--help``.
+
+    tyro (1.0.x) joins single line breaks before it removes the class body's indentation,
+    so every continuation line of an attribute docstring starts with a space and keeps its
+    break, and the help wraps at the source's line ends. Its private joiner is replaced by
+    :func:`join_docstring_lines`; on a tyro without it, help is left as tyro makes it.
+    """
+    import tyro
+
+    strings = getattr(tyro, "_strings", None)
+    if strings is not None and hasattr(strings, "remove_single_line_breaks"):
+        strings.remove_single_line_breaks = join_docstring_lines
+    return tyro
+
+
 def parse_with_presets(presets: dict[str, tuple[str, T]], args: Sequence[str], prog: str,
                        purpose: str, default: str) -> T:
     """``[--preset NAME] [flags]`` → the preset ``NAME`` (else ``default``) with flags applied.
@@ -110,8 +153,7 @@ def parse_with_presets(presets: dict[str, tuple[str, T]], args: Sequence[str], p
     Raises:
         ConfigError: an unknown preset name.
     """
-    import tyro
-
+    tyro = use_tyro()
     rest, preset = list(args), default
     for i, a in enumerate(rest):
         if a == "--preset" and i + 1 < len(rest):

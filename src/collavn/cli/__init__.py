@@ -11,8 +11,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-import tyro
-
+from collavn.configs import use_tyro
 from collavn.errors import CollavnError, Interrupted
 
 #: command words → (module, class or function, one line). Add a line to add a command.
@@ -61,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
             prog, rest = "collavn " + " ".join(words), args[len(words):]
             try:
                 if isinstance(target, type):
-                    return int(tyro.cli(target, args=rest, prog=prog).run() or 0)
+                    return int(use_tyro().cli(target, args=rest, prog=prog).run() or 0)
                 return int(target(rest, prog) or 0)
             except CollavnError as e:
                 print(f"collavn: error: {e}", file=sys.stderr)
