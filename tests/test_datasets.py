@@ -244,7 +244,18 @@ def test_cli_generate_and_info(tmp_path, door_scene, capsys):
     assert info["files"][0]["difficulties"] == {"easy": 10, "medium": 10, "hard": 10}
     assert sum(info["histograms"]["specificgoal_n2/val"]) == 60  # 30 episodes × 2 agents
     assert DatasetInfo(tmp_path / "ds").run() == 0
-    assert "door" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "door" in text and f"fingerprint {info['fingerprint']}" in text
+    # the same command again: the same fingerprint; another seed: another one
+    for name, seed, same in (("again", "0", True), ("seed1", "1", False)):
+        assert tyro.cli(DatasetGenerate, args=[
+            "--task", "specificgoal", "--agents", "2", "--split", "val", "--preset", "small",
+            "--out", str(tmp_path / name), "--scenes", str(scene_file), "--quiet",
+            "--seed", seed]).run() == 0
+        capsys.readouterr()
+        assert DatasetInfo(tmp_path / name, json=True).run() == 0
+        other = json.loads(capsys.readouterr().out)["fingerprint"]
+        assert (other == info["fingerprint"]) is same
 
 
 def _y_up_centimetre_room(path: Path) -> Path:

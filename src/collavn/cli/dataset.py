@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -99,6 +100,8 @@ class DatasetInfo:
                           *(str(f["difficulties"].get(d, 0)) for d in DIFFICULTY_BINS),
                           str(f["episodes"]))
         console.print(table)
+        console.print(f"fingerprint {info['fingerprint']} (equal on two machines only if "
+                      "the episodes and scenes are)")
         edges = info["histogram_edges"]
         for group, hist in info["histograms"].items():
             console.print(f"\ngeodesic start-to-goal distance, all agents: {group}")
@@ -109,7 +112,12 @@ class DatasetInfo:
 
 
 def dataset_summary(dataset: Dataset) -> dict[str, Any]:
-    """Counts per file and difficulty; distance histograms per ``group/split``."""
+    """Counts per file and difficulty; distance histograms per ``group/split``; a fingerprint.
+
+    The fingerprint (16 hex digits) hashes every file's path and content hash, which covers
+    its episodes and its scene's geometry and navigation: two datasets made on different
+    machines by the same command hold the same episodes only if their fingerprints match.
+    """
     files: list[dict[str, Any]] = []
     hists: dict[str, np.ndarray] = {}
     for path, content in dataset.files.items():
@@ -122,8 +130,12 @@ def dataset_summary(dataset: Dataset) -> dict[str, Any]:
         hists[group] = hists.get(group, np.zeros_like(counts)) + counts
         files.append({"path": path, "task": content.task, "num_agents": content.num_agents,
                       "split": content.split, "scene": content.scene.name,
-                      "episodes": len(content.episodes), "difficulties": difficulties})
+                      "episodes": len(content.episodes), "difficulties": difficulties,
+                      "content_hash": content.content_hash})
+    listing = "\n".join(f"{f['path']} {f['content_hash']}" for f in sorted(
+        files, key=lambda f: f["path"]))
     return {"root": str(dataset.root), "episodes": len(dataset), "files": files,
+            "fingerprint": hashlib.sha256(listing.encode()).hexdigest()[:16],
             "histogram_edges": HISTOGRAM_EDGES.round(2).tolist(),
             "histograms": {g: h.tolist() for g, h in hists.items()}}
 
