@@ -100,8 +100,8 @@ class DatasetInfo:
                           *(str(f["difficulties"].get(d, 0)) for d in DIFFICULTY_BINS),
                           str(f["episodes"]))
         console.print(table)
-        console.print(f"fingerprint {info['fingerprint']} (same episodes and scenes on "
-                      "any machine ⇔ same fingerprint)")
+        console.print(f"fingerprint {info['fingerprint']} (equal on any two machines iff "
+                      "the episodes are)")
         edges = info["histogram_edges"]
         for group, hist in info["histograms"].items():
             console.print(f"\ngeodesic start-to-goal distance, all agents: {group}")
