@@ -9,9 +9,11 @@ from collavn.cli import main
 from collavn.errors import CollavnError
 from collavn.evaluation.compare import (
     check_same_episodes,
+    compare_pooled,
     compare_records,
     episode_scores,
     paired_bootstrap,
+    pooled_bootstrap,
 )
 from collavn.evaluation.runner import write_records
 from collavn.metrics import AgentRecord, compute_metrics
@@ -131,3 +133,37 @@ def test_single_evaluation_interval_contains_its_value_and_narrows_with_more_epi
     assert small[3] == 30 and big[3] == 300
     assert small[0] == pytest.approx(40 / 60)
     assert big[2] - big[1] < small[2] - small[1]
+
+
+def test_pooled_copies_of_one_run_equal_the_paired_comparison():
+    a, b = episode_scores(A), episode_scores(B)
+    paired = paired_bootstrap(a, b, samples=1500, rng=np.random.default_rng(3))
+    pooled = pooled_bootstrap(a, [b, b, b], samples=1500, rng=np.random.default_rng(3),
+                              run_rng=np.random.default_rng(4))
+    assert pooled == paired  # same episode draws; every run draw picks the same values
+
+
+def test_pooled_value_is_the_runs_mean_and_the_interval_holds_their_spread():
+    every = {f"e{i}": ("easy", (1, 1)) for i in range(40)}
+    none = {e: ("easy", (0, 0)) for e in every}
+    base, good, bad = records(none, 2.0), records(every, 2.0), records(none, 2.0)
+    c = compare_pooled(base, [good, bad], "base", "both", samples=2000, seed=0)
+    d = c.groups["easy"]["SR"]
+    assert (d.a, d.b, d.delta) == (0.0, 0.5, 0.5)
+    # episodes all alike: only the run draws vary, {good,good}, {good,bad}, {bad,bad}
+    assert (d.low, d.high) == (0.0, 1.0)
+    one = compare_pooled(base, [good], "base", "good", samples=200).groups["easy"]["SR"]
+    assert (one.delta, one.low, one.high) == (1.0, 1.0, 1.0)
+    with pytest.raises(CollavnError, match=r"base and both\[1\] were evaluated on different"):
+        compare_pooled(base, [good, bad[:-1]], "base", "both")
+
+
+def test_cli_compare_pool(tmp_path, capsys):
+    for name, recs in (("base", A), ("s1", B), ("s2", A)):
+        write_records(tmp_path / name / "records.jsonl", recs)
+    dirs = [str(tmp_path / n) for n in ("base", "s1", "s2")]
+    assert main(["compare", *dirs, "--pool", "--samples", "200", "--json"]) == 0
+    [out] = json.loads(capsys.readouterr().out)
+    assert out["method"] == "mean of 2: s1, s2"
+    # s1 is +5/12 over the baseline, s2 is the baseline: the mean is +5/24
+    assert out["groups"]["overall"]["SR"]["delta"] == pytest.approx(5 / 24)

@@ -10,7 +10,11 @@ from typing import Annotated
 import tyro
 
 from collavn.errors import CollavnError
-from collavn.evaluation.compare import compare_records, comparisons_to_markdown
+from collavn.evaluation.compare import (
+    compare_pooled,
+    compare_records,
+    comparisons_to_markdown,
+)
 from collavn.evaluation.runner import read_records
 from collavn.metrics import AgentRecord
 
@@ -20,7 +24,8 @@ class Compare:
     """Compare evaluations of the same episodes (paired bootstrap over episodes).
 
     SR, SPL and DTS differences with 95 % intervals, per difficulty and overall. Every
-    evaluation after the first is compared with the first (Δ = it − first).
+    evaluation after the first is compared with the first (Δ = it − first); with
+    ``--pool``, their mean is (runs of one recipe, e.g. training seeds).
     """
 
     evaluations: Annotated[tuple[Path, ...], tyro.conf.Positional]
@@ -30,6 +35,10 @@ class Compare:
     """Bootstrap resamples of the episodes."""
     seed: int = 0
     """Seeds the resampling."""
+    pool: bool = False
+    """Compare the mean of the evaluations after the first (runs of one recipe: seeds)
+    with the first, in one row. The interval resamples the runs as well as the
+    episodes, so it holds the spread between seeds too (roughly, with few runs)."""
     json: bool = False
     """Print JSON (a list, one object per compared evaluation) instead of Markdown."""
 
@@ -39,9 +48,14 @@ class Compare:
             raise CollavnError("give at least two evaluations: BASELINE METHOD [METHOD ...]")
         names = _names(self.evaluations)
         records = [_records(path) for path in self.evaluations]
-        comparisons = [compare_records(records[0], other, names[0], name, self.samples,
-                                       self.seed)
-                       for name, other in zip(names[1:], records[1:], strict=True)]
+        if self.pool:
+            comparisons = [compare_pooled(records[0], records[1:], names[0],
+                                          f"mean of {len(names) - 1}: {', '.join(names[1:])}",
+                                          self.samples, self.seed)]
+        else:
+            comparisons = [compare_records(records[0], other, names[0], name, self.samples,
+                                           self.seed)
+                           for name, other in zip(names[1:], records[1:], strict=True)]
         if self.json:
             print(json.dumps([c.to_json() for c in comparisons], indent=2))
         else:

@@ -107,25 +107,57 @@ def paired_bootstrap(a: EpisodeScores, b: EpisodeScores, samples: int = 5000,
         rng: Draws the resampled episode indices (shared by all metrics).
         level: Coverage of the interval.
     """
-    if not np.array_equal(a.episode_ids, b.episode_ids):
-        raise CollavnError("paired bootstrap needs the same episodes in the same order")
+    return pooled_bootstrap(a, [b], samples, rng, None, level)
+
+
+def pooled_bootstrap(a: EpisodeScores, runs: Sequence[EpisodeScores], samples: int = 5000,
+                     rng: np.random.Generator | None = None,
+                     run_rng: np.random.Generator | None = None,
+                     level: float = 0.95) -> dict[str, Difference]:
+    """Difference between the mean of ``R`` runs of a method and a baseline, with its interval.
+
+    The method's value is the mean of its runs' values (e.g. training seeds of one
+    recipe). Each resample draws the ``K`` episodes with replacement (the same for the
+    baseline and every run) and, when ``R > 1``, ``R`` of the runs with replacement, so
+    the interval holds the spread between runs as well as between episodes; with a
+    handful of runs it is itself rough. One run is :func:`paired_bootstrap`.
+
+    Args:
+        a: Baseline scores.
+        runs: The method's runs, each on the baseline's episodes in the same order.
+        samples: Bootstrap resamples.
+        rng: Draws the episode indices (the same draws as :func:`paired_bootstrap`).
+        run_rng: Draws the run indices (unused for one run).
+        level: Coverage of the interval.
+    """
+    if not runs:
+        raise CollavnError("no runs to compare")
+    for b in runs:
+        if not np.array_equal(a.episode_ids, b.episode_ids):
+            raise CollavnError("paired bootstrap needs the same episodes in the same order")
     if len(a.episode_ids) == 0:
         raise CollavnError("no episodes to compare")
     rng = rng or np.random.default_rng(0)
-    k = len(a.episode_ids)
+    run_rng = run_rng or np.random.default_rng(1)
+    k, r = len(a.episode_ids), len(runs)
+    stacked = {m: np.stack([b.sums[m] for b in runs]) for m in a.sums}  # (R, K)
     deltas: dict[str, list[np.ndarray]] = {m: [] for m in a.sums}
     for start in range(0, samples, _CHUNK):
-        idx = rng.integers(0, k, size=(min(_CHUNK, samples - start), k))
+        n = min(_CHUNK, samples - start)
+        idx = rng.integers(0, k, size=(n, k))
+        pick = run_rng.integers(0, r, size=(n, r)) if r > 1 else np.zeros((n, 1), int)
         agents = a.agents[idx].sum(axis=1)
         for m in a.sums:
-            deltas[m].append((b.sums[m][idx].sum(axis=1) - a.sums[m][idx].sum(axis=1))
-                             / agents)
+            totals = stacked[m][:, idx].sum(axis=-1).T  # (n, R): each run's resampled sum
+            method = np.take_along_axis(totals, pick, axis=1).mean(axis=1)
+            deltas[m].append((method - a.sums[m][idx].sum(axis=1)) / agents)
     tail = 100 * (1 - level) / 2
     out = {}
     for m in a.sums:
-        va, vb = a.sums[m].sum() / a.agents.sum(), b.sums[m].sum() / b.agents.sum()
+        va = a.sums[m].sum() / a.agents.sum()
+        vb = float(np.mean([b.sums[m].sum() / b.agents.sum() for b in runs]))
         low, high = np.percentile(np.concatenate(deltas[m]), [tail, 100 - tail])
-        out[m] = Difference(float(va), float(vb), float(vb - va), float(low), float(high))
+        out[m] = Difference(float(va), vb, float(vb - va), float(low), float(high))
     return out
 
 
@@ -205,19 +237,35 @@ def compare_records(a: Sequence[AgentRecord], b: Sequence[AgentRecord], name_a: 
     Each group draws from its own generator, ``default_rng([seed, group index])``, so a
     difficulty's interval does not depend on which other difficulties are present.
     """
+    return compare_pooled(a, [b], name_a, name_b, samples, seed, metrics)
+
+
+def compare_pooled(a: Sequence[AgentRecord], runs: Sequence[Sequence[AgentRecord]],
+                   name_a: str = "A", name_b: str = "B", samples: int = 5000, seed: int = 0,
+                   metrics: Sequence[str] = COMPARED) -> Comparison:
+    """The mean of several runs of a method against ``a``, resampling episodes and runs.
+
+    As :func:`compare_records` (which is this with one run), with
+    :func:`pooled_bootstrap`; the runs are drawn by ``default_rng([seed, group index,
+    1])``. Every run must cover ``a``'s episodes.
+    """
     if samples < 1:
         raise CollavnError(f"samples must be ≥ 1, got {samples}")
-    check_same_episodes(a, b, name_a, name_b)
-    scores_a, scores_b = episode_scores(a, metrics), episode_scores(b, metrics)
+    if not runs:
+        raise CollavnError("no runs to compare")
+    for i, run in enumerate(runs):
+        check_same_episodes(a, run, name_a, name_b if len(runs) == 1 else f"{name_b}[{i}]")
+    scores_a = episode_scores(a, metrics)
+    scores_runs = [episode_scores(run, metrics) for run in runs]
     groups, episodes = {}, {}
     for g, group in enumerate((*DIFFICULTIES, "overall")):
         mask = (np.ones(len(scores_a.episode_ids), bool) if group == "overall"
                 else scores_a.difficulty == group)
         if not mask.any():
             continue
-        rng = np.random.default_rng([seed, g])
-        groups[group] = paired_bootstrap(scores_a.select(mask), scores_b.select(mask),
-                                         samples, rng)
+        groups[group] = pooled_bootstrap(
+            scores_a.select(mask), [sc.select(mask) for sc in scores_runs], samples,
+            np.random.default_rng([seed, g]), np.random.default_rng([seed, g, 1]))
         episodes[group] = int(mask.sum())
     return Comparison(name_a, name_b, groups, episodes, samples, seed)
 
