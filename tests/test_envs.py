@@ -160,3 +160,28 @@ def test_the_free_space_sensor_reads_the_depth_it_renders(open_room):
     assert parallel.reset(seed=3)[0]["agent_1"]["free_space"].shape == (8,)
     with pytest.raises(ConfigError, match=r"--env.free-space 5 must divide the panorama width"):
         EnvConfig(free_space=5, **SMALL)
+
+
+def test_collision_penalty_option_sets_what_a_collision_costs(open_room):
+    from dataclasses import replace
+
+    from collavn.errors import ConfigError
+
+    base = EnvConfig(num_agents=2, **SMALL)
+    envs = [VectorEnv([open_room], 1, replace(base, collision_penalty=c), seed=5,
+                      autoreset=False) for c in (0.05, 0.3)]
+    for env in envs:
+        env.reset(seed=5)
+    assert [env.task.collision_penalty for env in envs] == [0.05, 0.3]
+    worlds = [env.groups[0].world for env in envs]
+    hits = 0
+    for _ in range(12):  # full speed ahead, turning a little: walls come soon
+        before = worlds[0].collisions.copy()
+        rewards = [env.step(np.tile([1.0, 0.2], (1, 2, 1)))[1] for env in envs]
+        collided = worlds[0].collisions - before
+        np.testing.assert_array_equal(worlds[1].collisions, worlds[0].collisions)
+        np.testing.assert_allclose(rewards[0] - rewards[1], 0.25 * collided, atol=1e-9)
+        hits += int(collided.sum())
+    assert hits > 0
+    with pytest.raises(ConfigError, match=r"--env\.collision-penalty"):
+        EnvConfig(collision_penalty=-0.1)

@@ -51,6 +51,8 @@ class EnvConfig:
         success_reward: Reward added on the step an agent reaches its goal; 0 (default)
             is the paper's reward, geodesic progress minus collisions, which pays
             nothing for the last metre that turns "near" into success.
+        collision_penalty: Subtracted from an agent's reward on every step it collides
+            (with the scene or a teammate); 0.05 (default) is the paper's.
         difficulty: Difficulty of episodes sampled on the fly (``easy``, ``medium``,
             ``hard`` or ``mixed``); unused when episodes come from a dataset.
         backend: Renderer backend: ``embree`` (CPU) or ``warp`` (CUDA or CPU).
@@ -77,6 +79,7 @@ class EnvConfig:
     odometry_noise: float = 0.0
     max_steps: int = 80
     success_reward: float = 0.0
+    collision_penalty: float = 0.05
     difficulty: DifficultyChoice = "mixed"
     backend: Literal["embree", "warp"] = "embree"
     device: str = "cpu"
@@ -98,6 +101,7 @@ class EnvConfig:
         check_number("--env.camera-height", self.camera_height)
         check_number("--env.odometry-noise", self.odometry_noise, allow_minimum=True)
         check_number("--env.success-reward", self.success_reward, allow_minimum=True)
+        check_number("--env.collision-penalty", self.collision_penalty, allow_minimum=True)
         if self.difficulty not in (*DIFFICULTY_BINS, "mixed"):
             raise ConfigError(f"unknown difficulty {self.difficulty!r}; expected one of "
                               f"{', '.join(DIFFICULTY_BINS)} or mixed")

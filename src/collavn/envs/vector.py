@@ -99,7 +99,8 @@ class VectorEnv:
         self.config, self.num_envs, self.num_agents = config, num_envs, config.num_agents
         self.autoreset = autoreset
         self.task = replace(get_task(config.task), max_steps=config.max_steps,
-                            success_reward=config.success_reward)
+                            success_reward=config.success_reward,
+                            collision_penalty=config.collision_penalty)
         self.params = params or AgentParams()
         self.rng = np.random.default_rng(seed)
         self._base_seed = int(self.rng.integers(2**62)) if seed is None else seed

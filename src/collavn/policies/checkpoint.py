@@ -119,6 +119,7 @@ LATER_FIELDS: dict[str, Any] = {
     "model.goal_belief": 0,
     "imitation.belief_coef": 1.0,
     "env.success_reward": 0.0,
+    "env.collision_penalty": 0.05,
     "imitation.lr_decay": False,
     "imitation.homing_weight": 1.0,
     "run.train_scenes": 25,
