@@ -13,7 +13,7 @@ from collavn.configs import check_count, check_number
 from collavn.datasets.episode import DIFFICULTY_BINS, Episode
 from collavn.errors import CollavnError, ConfigError
 from collavn.scenes.scene import Scene
-from collavn.tasks import TASKS, TaskName
+from collavn.tasks import TASKS, TaskName, TaskSpec
 
 #: Difficulty of on-the-fly episodes: a bin, or ``mixed`` (a bin drawn per episode).
 DifficultyChoice = Literal["easy", "medium", "hard", "mixed"]
@@ -77,9 +77,9 @@ class EnvConfig:
     free_space: int = 0
     explore_action: bool = False
     odometry_noise: float = 0.0
-    max_steps: int = 80
-    success_reward: float = 0.0
-    collision_penalty: float = 0.05
+    max_steps: int = TaskSpec.max_steps
+    success_reward: float = TaskSpec.success_reward
+    collision_penalty: float = TaskSpec.collision_penalty
     difficulty: DifficultyChoice = "mixed"
     backend: Literal["embree", "warp"] = "embree"
     device: str = "cpu"
