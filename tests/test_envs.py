@@ -185,3 +185,34 @@ def test_collision_penalty_option_sets_what_a_collision_costs(open_room):
     assert hits > 0
     with pytest.raises(ConfigError, match=r"--env\.collision-penalty"):
         EnvConfig(collision_penalty=-0.1)
+
+
+def test_gt_maps_mark_every_depth_hit_in_its_cell(open_room):
+    from collavn.envs.sensors import Sensors
+
+    env = VectorEnv([open_room], 2, EnvConfig(num_agents=2, depth=True, gt_map=True, **SMALL),
+                    seed=4)
+    obs, _ = env.reset(seed=4)
+    sensors: Sensors = env.groups[0].sensors
+    m, nav = env.config.gt_map_size, open_room.nav.config
+    depth = obs["depth"].copy()
+    depth[0, 0, :, :3] = np.inf  # rays that must be skipped like misses
+    maps = sensors.gt_maps(np.zeros((2, 2, 3)), depth)
+    want = np.zeros_like(maps)  # one pixel at a time, as the docstring says
+    rays = sensors.panorama.ray_directions().astype(np.float64)
+    for e, n in np.ndindex(2, 2):
+        for p, d in enumerate(depth[e, n].reshape(-1).astype(np.float64)):
+            if not (np.isfinite(d) and d > 0):
+                continue
+            forward, left, up = d * rays[p]
+            row = int(np.floor(m / 2 - forward / nav.resolution))
+            col = int(np.floor(m / 2 - left / nav.resolution))
+            if 0 <= row < m and 0 <= col < m:
+                want[e, n, 1, row, col] = 1.0
+                height = up + sensors.panorama.mount_height
+                if nav.step_height <= height <= nav.agent_height:
+                    want[e, n, 0, row, col] = 1.0
+    body = int(np.ceil(nav.agent_radius / nav.resolution))
+    want[:, :, 1, m // 2 - body:m // 2 + body, m // 2 - body:m // 2 + body] = 1.0
+    np.testing.assert_array_equal(maps, want)
+    assert want[:, :, 0].sum() > 0 and want[:, :, 1].sum() > want[:, :, 0].sum()

@@ -7,7 +7,7 @@ import pytest
 
 from collavn.datasets.generator import sample_episodes
 from collavn.envs import EnvConfig
-from collavn.envs.free_space import ExploreRule
+from collavn.envs.free_space import ExploreRule, free_runs_reference
 from collavn.envs.vector import VectorEnv
 from collavn.evaluation.runner import evaluate
 from collavn.metrics import compute_metrics
@@ -167,3 +167,19 @@ def test_the_explore_action_sensor_is_the_deterministic_explorers_move(apartment
             policy.executed(state, actions, active)
         obs, *_ = env.step(actions)
     assert turns > 10  # the comparison covered turns, not only straight runs
+
+
+def test_compiled_free_runs_equal_the_array_definition_bit_for_bit():
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(0.0, 6.0, (3, 2, 16, 64)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.3] = 0.0  # rays without a hit
+    depth[0, 0] = 0.0  # a view that sees nothing
+    depth[1, 0] = wall_depth(0.35)  # a wall nearer than some radii
+    for d in (depth, depth.astype(np.float64), depth[2, 1]):
+        for radius, directions in ((0.2, None), (0.32, 16), (0.45, 8)):
+            fast = free_runs(d, radius, directions=directions)
+            assert fast.shape == d.shape[:-2] + (directions or 64,)
+            np.testing.assert_array_equal(
+                fast, free_runs_reference(d, radius, directions=directions))
+    assert (free_runs(depth, 0.2)[0, 0] == 10.0).all()  # nothing seen: the horizon
+    assert free_runs(depth, 0.45)[1, 0, 32] == 0.0  # already touching the wall ahead

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -473,6 +474,22 @@ def test_map_fifo_keeps_the_newest_samples():
     assert fifo.size == 0
 
 
+def test_map_fifo_push_in_batches_equals_push_one_by_one():
+    from collavn.training.map_training import MapFIFO
+
+    rng = np.random.default_rng(3)
+    batched, single = MapFIFO(capacity=5), MapFIFO(capacity=5)
+    for count in (2, 4, 0, 7, 1, 5, 3):  # wraps around, and once more than fit
+        x = rng.normal(size=(count, 2))
+        batched.push({"x": x, "y": x.sum(1).astype(np.float32)})
+        for row in x:
+            single.push({"x": row[None], "y": row.sum(keepdims=True).astype(np.float32)})
+        assert (batched.size, batched.cursor) == (single.size, single.cursor)
+        np.testing.assert_array_equal(batched.data["x"], single.data["x"])
+        np.testing.assert_array_equal(batched.data["y"], single.data["y"])
+    assert batched.size == 5
+
+
 def test_dagger_mixing_and_beta_schedule():
     from collavn.training.config import ImitationConfig
     from collavn.training.imitation import expert_probability, mix_actions
@@ -546,3 +563,24 @@ def test_imitation_lr_decay_is_linear_in_agent_steps_and_survives_a_resume():
     fresh = _fixed_batch("il")[1]
     fresh.agent_steps = 3 * fresh.steps_per_update
     assert learn(fresh, rollout)["opt/learning_rate"] == base
+
+
+def test_adam_is_fused_on_cpu_and_steps_like_the_unfused_one():
+    from collavn.models.optim import adam
+
+    torch.manual_seed(0)
+    net = torch.nn.Sequential(torch.nn.Linear(6, 5), torch.nn.Tanh(), torch.nn.Linear(5, 2))
+    twin, start = copy.deepcopy(net), copy.deepcopy(net)
+    fused = adam([{"params": net.parameters()}], lr=0.01, eps=1e-5)
+    plain = torch.optim.Adam(twin.parameters(), lr=0.01, eps=1e-5)
+    assert fused.defaults["fused"] is True and not plain.defaults["fused"]
+    x = torch.randn(16, 6)
+    for _ in range(5):
+        for model, opt in ((net, fused), (twin, plain)):
+            opt.zero_grad()
+            model(x).pow(2).mean().backward()
+            opt.step()
+    for a, b in zip(net.parameters(), twin.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    assert not torch.allclose(net[0].weight, start[0].weight)  # it did train
+    plain.load_state_dict(fused.state_dict())  # the same state-dict form both ways

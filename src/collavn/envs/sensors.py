@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from collavn.envs.config import EnvConfig
@@ -107,19 +108,36 @@ class Sensors:
         m = self.config.gt_map_size
         nav = self.scene.nav.config
         res = nav.resolution
-        d = depth.reshape(e * n, -1).astype(np.float64)
-        valid = np.isfinite(d) & (d > 0)
-        pts = d[..., None] * self._directions[None]  # (B, P, 3) agent frame
-        height = pts[..., 2] + self.panorama.mount_height
-        row = np.floor(m / 2 - pts[..., 0] / res).astype(np.int64)
-        col = np.floor(m / 2 - pts[..., 1] / res).astype(np.int64)
-        valid &= (row >= 0) & (row < m) & (col >= 0) & (col < m)
-        obstacle = valid & (height >= nav.step_height) & (height <= nav.agent_height)
         maps = np.zeros((e * n, 2, m, m), np.float32)
-        b = np.broadcast_to(np.arange(e * n)[:, None], d.shape)
-        maps[b[obstacle], 0, row[obstacle], col[obstacle]] = 1.0
-        maps[b[valid], 1, row[valid], col[valid]] = 1.0
+        _project_kernel(np.ascontiguousarray(depth.reshape(e * n, -1)), self._directions,
+                        float(self.panorama.mount_height), float(res), float(nav.step_height),
+                        float(nav.agent_height), maps)
         body = int(np.ceil(nav.agent_radius / res))
         maps[:, 1, m // 2 - body:m // 2 + body, m // 2 - body:m // 2 + body] = 1.0
         return maps.reshape(e, n, 2, m, m)
 
+
+@numba.njit(cache=True, nogil=True)
+def _project_kernel(depth: np.ndarray, directions: np.ndarray, mount_height: float,
+                    res: float, low: float, high: float,
+                    maps: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Mark each pixel's hit of ``depth (B, P)`` in ``maps (B, 2, M, M)`` (see ``gt_maps``).
+
+    A hit at ``d · direction`` (agent frame: forward, left, up) falls in row
+    ``⌊M/2 − forward/res⌋``, column ``⌊M/2 − left/res⌋``; inside the map it is explored
+    (channel 1), and an obstacle (channel 0) between ``low`` and ``high`` above the floor.
+    """
+    m = maps.shape[-1]
+    for b in range(depth.shape[0]):
+        for p in range(depth.shape[1]):
+            d = np.float64(depth[b, p])
+            if not (np.isfinite(d) and d > 0):
+                continue
+            row = int(np.floor(m / 2 - d * directions[p, 0] / res))
+            col = int(np.floor(m / 2 - d * directions[p, 1] / res))
+            if row < 0 or row >= m or col < 0 or col >= m:
+                continue
+            maps[b, 1, row, col] = 1.0
+            height = d * directions[p, 2] + mount_height
+            if height >= low and height <= high:
+                maps[b, 0, row, col] = 1.0

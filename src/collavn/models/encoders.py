@@ -41,6 +41,8 @@ def normalise_rgb(images: Tensor) -> Tensor:
     rgb = x[:, :3] / 255.0
     mean = rgb.new_tensor(_MEAN).view(1, 3, 1, 1)
     std = rgb.new_tensor(_STD).view(1, 3, 1, 1)
+    if x.shape[1] == 3:
+        return (rgb - mean) / std
     return torch.cat([(rgb - mean) / std, x[:, 3:]], dim=1)
 
 

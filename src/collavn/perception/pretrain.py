@@ -34,6 +34,7 @@ from torch import nn
 from collavn.datasets.episode import DIFFICULTY_BINS, in_bin
 from collavn.metrics import SIGHT_DISTANCE
 from collavn.models.frames import FramePerception
+from collavn.models.optim import adam
 from collavn.models.readout import PerceptionReadout
 from collavn.perception.config import PerceptionConfig, PretrainConfig
 from collavn.perception.encoder import encoder_spec, save_encoder
@@ -125,7 +126,7 @@ class Pretrainer:
         self.heads = own or PerceptionReadout(self.frames.embed_size,
                                               self.frames.pair_goal_size, p.bins, p.hidden)
         params = [*self.frames.parameters(), *([] if own else self.heads.parameters())]
-        self.optimizer = torch.optim.Adam(params, lr=p.lr)
+        self.optimizer = adam(params, lr=p.lr)
         self.rng = np.random.default_rng(cfg.seed + 1)
         # (A readout of the model's own is both entries: copies keep it one module.)
         self.net = nn.ModuleDict({"frames": self.frames, "heads": self.heads})

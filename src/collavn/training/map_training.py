@@ -18,6 +18,7 @@ import torch
 from torch import Tensor, nn
 
 from collavn.models.mapping import map_loss
+from collavn.models.optim import adam
 from collavn.models.policy import ActorCritic, AgentTower
 from collavn.training.config import MapTrainConfig
 
@@ -56,11 +57,12 @@ class MapFIFO:
         if not self.data:
             self.data = {k: np.zeros((self.capacity, *v.shape[1:]), v.dtype)
                          for k, v in samples.items()}
-        for i in range(count):
-            for k, v in samples.items():
-                self.data[k][self.cursor] = v[i]
-            self.cursor = (self.cursor + 1) % self.capacity
-            self.size = min(self.size + 1, self.capacity)
+        first = max(0, count - self.capacity)  # of more than fit, only the last ones stay
+        slots = (self.cursor + np.arange(first, count)) % self.capacity
+        for k, v in samples.items():
+            self.data[k][slots] = v[first:]
+        self.cursor = (self.cursor + count) % self.capacity
+        self.size = min(self.size + count, self.capacity)
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
         """``batch_size`` samples drawn uniformly with replacement."""
@@ -89,7 +91,7 @@ class MapTrainer:
                  sync_gradients: Callable[[list[nn.Parameter]], None] | None = None) -> None:
         self.model, self.cfg, self.use_depth = model, cfg, use_depth
         self.params = list(map_parameters(model))
-        self.optimizer = torch.optim.Adam(self.params, lr=cfg.lr)
+        self.optimizer = adam(self.params, lr=cfg.lr)
         self.fifo = MapFIFO(cfg.fifo_size)
         self.rng = np.random.default_rng(seed)
         self.sync_gradients = sync_gradients

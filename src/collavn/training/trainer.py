@@ -40,6 +40,7 @@ from collavn.envs.vector import VectorEnv
 from collavn.errors import CheckpointError
 from collavn.files import prepare_output_dir
 from collavn.models.belief import belief_labels
+from collavn.models.optim import adam
 from collavn.models.policy import ActorCritic, AgentTower
 from collavn.models.state import AgentState
 from collavn.perception.encoder import EncoderFile, install_encoder, load_encoder
@@ -194,7 +195,7 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
             install_encoder(anchor, encoder, cfg.env.camera_height)
     distributed.broadcast_parameters(model)
     set_train_mode(model)
-    optimizer = torch.optim.Adam(parameter_groups(model, cfg), lr=cfg.learning_rate, eps=1e-5)
+    optimizer = adam(parameter_groups(model, cfg), lr=cfg.learning_rate, eps=1e-5)
     maps = MapTrainer(model, cfg.mapping, cfg.model.map.use_depth, info.seed(cfg.run.seed),
                       distributed.average_gradients if info.enabled else None)
     expert = (Expert(cfg.imitation, env.scenes, env.num_envs, env.num_agents, cfg.run.seed)
