@@ -61,6 +61,9 @@ def resumed_and_straight(tmp_path_factory):
     straight = train(cfg.with_run(total_steps=4 * per_update))
     part = cfg.with_run(out=str(root / "resumed"), total_steps=2 * per_update)
     first = train(part)
+    # the first half's checkpoint continued in another directory, then in place
+    train(part.with_run(out=str(root / "extended"), total_steps=4 * per_update,
+                        resume_from=str(root / "resumed" / CHECKPOINT)))
     resumed = train(part.with_run(total_steps=4 * per_update, resume=True))
     return cfg, root, straight, first, resumed
 
@@ -69,9 +72,12 @@ def test_resume_gives_bit_identical_parameters(resumed_and_straight):
     _, root, straight, first, resumed = resumed_and_straight
     assert (first.iterations, resumed.iterations, straight.iterations) == (2, 4, 4)
     a, b = _params(root / "straight" / CHECKPOINT), _params(root / "resumed" / CHECKPOINT)
-    assert a.keys() == b.keys()
+    c = _params(root / "extended" / CHECKPOINT)  # --resume-from the first half
+    assert a.keys() == b.keys() == c.keys()
     for k in a:
         assert torch.equal(a[k], b[k]), k
+        assert torch.equal(a[k], c[k]), k
+    assert load_checkpoint(root / "extended" / CHECKPOINT)["iteration"] == 4
     # ...and training did change them.
     fresh = tiny_config("ours")
     torch.manual_seed(fresh.run.seed)
@@ -95,6 +101,26 @@ def test_resume_with_another_config_is_refused(resumed_and_straight):
                                                                  resume=True)
     with pytest.raises(CheckpointError, match=r"different configuration.*ppo\.lr"):
         train(other)
+
+
+def test_resume_from_refuses_what_it_cannot_continue(resumed_and_straight, tmp_path):
+    from collavn.cli.train import resume_args
+    from collavn.errors import ConfigError
+
+    cfg, root, *_ = resumed_and_straight
+    source = str(root / "straight" / CHECKPOINT)
+    with pytest.raises(CheckpointError, match=r"--resume-from: no checkpoint at"):
+        train(cfg.with_run(out=str(tmp_path / "a"), resume_from=str(tmp_path / "none.pt")))
+    other = replace(cfg, ppo=replace(cfg.ppo, lr=1.0))
+    with pytest.raises(CheckpointError, match=r"different configuration.*ppo\.lr"):
+        train(other.with_run(out=str(tmp_path / "b"), resume_from=source))
+    with pytest.raises(ConfigError, match="--resume and --resume-from exclude each other"):
+        cfg.with_run(out=str(tmp_path / "c"), resume=True, resume_from=source)
+    with pytest.raises(ConfigError, match="lies inside --out"):
+        cfg.with_run(out=str(root / "straight"), resume_from=source)
+    assert resume_args(["--out", "x", "--resume-from", source, "--seed", "2"]) == [
+        "--out", "x", "--seed", "2", "--resume"]
+    assert resume_args(["--overwrite", f"--resume-from={source}"]) == ["--resume"]
 
 
 def test_checkpoint_loads_as_an_evaluation_policy_for_any_n(resumed_and_straight):

@@ -13,7 +13,9 @@ Every field of :class:`~collavn.training.config.TrainConfig` is a flag (``--ppo.
 configuration is written to ``OUT/config.json`` and into every checkpoint.
 
 A non-empty ``--out`` is refused unless ``--resume`` (continue its checkpoint) or
-``--overwrite`` (move it aside to ``OUT.old-<time>`` and start over). Ctrl-C or SIGTERM
+``--overwrite`` (move it aside to ``OUT.old-<time>`` and start over); ``--resume-from
+RUN/checkpoint.pt`` continues another run's checkpoint in a new ``--out`` (to extend a
+finished run and keep it). Ctrl-C or SIGTERM
 stops at the next checkpoint sync point with a checkpoint and prints how to resume
 (exit 130 / 143); a second one stops at once without saving.
 """
@@ -48,8 +50,25 @@ def main(args: Sequence[str], prog: str = "collavn train") -> int:
               f"training SR {sr:.3f}; checkpoint {result.checkpoint}")
     if result.signal is None:
         return 0
-    again = [a for a in args if a not in ("--resume", "--overwrite")] + ["--resume"]
     print(f"collavn: stopped by {signal.Signals(result.signal).name} after update "
           f"{result.iterations}; checkpoint {result.checkpoint}. Continue with:\n  "
-          f"{prog} {shlex.join(again)}", file=sys.stderr)
+          f"{prog} {shlex.join(resume_args(args))}", file=sys.stderr)
     return 128 + result.signal
+
+
+def resume_args(args: Sequence[str]) -> list[str]:
+    """``args`` made to continue the run in its ``--out``.
+
+    ``--resume`` replaces ``--overwrite`` and ``--resume-from FILE`` (the run's
+    checkpoint is ``OUT``'s now).
+    """
+    out: list[str] = []
+    skip = False
+    for a in args:
+        if skip:
+            skip = False
+        elif a == "--resume-from":
+            skip = True
+        elif a not in ("--resume", "--overwrite") and not a.startswith("--resume-from="):
+            out.append(a)
+    return out + ["--resume"]

@@ -125,6 +125,7 @@ LATER_FIELDS: dict[str, Any] = {
     "run.train_scenes": 25,
     "ppo.bc_target": "expert",
     "ppo.bc_steps": "all",
+    "run.resume_from": "",
 }
 
 

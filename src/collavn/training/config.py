@@ -24,6 +24,7 @@ field except :data:`RUN_CONTROL_FIELDS`) is equal.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import tyro
@@ -65,7 +66,7 @@ METHODS: dict[str, MethodSpec] = {
 }
 
 #: Fields that steer a run without changing its results (allowed to differ on resume).
-RUN_CONTROL_FIELDS = ("run.out", "run.resume", "run.overwrite",
+RUN_CONTROL_FIELDS = ("run.out", "run.resume", "run.resume_from", "run.overwrite",
                       "run.total_steps", "run.time_budget_minutes",
                       "run.progress", "run.device", "run.log_interval", "run.torch_threads",
                       "env.render_threads", "run.encoder")
@@ -269,6 +270,12 @@ class RunConfig:
     resume: bool = False
     """Continue from ``OUT/checkpoint.pt`` (refused if it is missing or was made by
     another config)."""
+    resume_from: str = ""
+    """Continue the checkpoint of another run in a new ``OUT`` (its directory is left as it
+    is), e.g. to extend a finished run with a larger ``--total-steps`` and keep the
+    original. The checkpoint's config must match this run's, as for ``--resume``; the
+    new run then goes on exactly as the old one would have (TensorBoard starts afresh in
+    ``OUT``). To continue again after a stop, use ``--resume`` on ``OUT``."""
     overwrite: bool = False
     """Start over in a non-empty ``OUT``: the old directory is moved aside to
     ``OUT.old-<time>`` (nothing is deleted). Without it (or ``--resume``) a non-empty
@@ -331,6 +338,13 @@ class RunConfig:
         if self.resume and self.overwrite:
             raise ConfigError("--resume and --overwrite exclude each other: continue the "
                               "run or start it over")
+        if self.resume_from and self.resume:
+            raise ConfigError("--resume and --resume-from exclude each other: --resume "
+                              "continues OUT's own checkpoint, --resume-from another run's")
+        if self.resume_from and Path(self.out).resolve() in Path(self.resume_from).resolve(
+                ).parents:
+            raise ConfigError(f"--resume-from {self.resume_from} lies inside --out "
+                              f"{self.out}: continue that run in place with --resume")
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,8 @@ that checkpoint starts a sync point there (statistically the same run, not bit-e
 
 Run directory: :func:`collavn.files.prepare_output_dir` refuses a non-empty ``out``
 unless ``resume`` (which then requires ``out/checkpoint.pt``) or ``overwrite`` (the old
-directory is moved aside).
+directory is moved aside); ``resume_from`` continues another run's checkpoint in a new
+``out``.
 """
 
 from __future__ import annotations
@@ -590,12 +591,16 @@ def train(cfg: TrainConfig) -> TrainResult:
 
     Raises:
         ConfigError: ``out`` is not usable (see :func:`collavn.files.prepare_output_dir`).
-        CheckpointError: ``resume`` without a checkpoint, or with another config's.
+        CheckpointError: ``resume`` (or ``resume_from``) without a checkpoint, or with
+            another config's.
     """
     out = Path(cfg.run.out)
     if cfg.run.resume and not (out / CHECKPOINT).is_file():
         raise CheckpointError(f"--resume: no checkpoint at {out / CHECKPOINT}; check --out, "
                               f"or start a new run without --resume")
+    source = Path(cfg.run.resume_from) if cfg.run.resume_from else None
+    if source is not None and not source.is_file():
+        raise CheckpointError(f"--resume-from: no checkpoint at {source}")
     info, device = distributed.setup(cfg.run.device)
     if cfg.run.torch_threads > 0:
         torch.set_num_threads(cfg.run.torch_threads)
@@ -605,8 +610,8 @@ def train(cfg: TrainConfig) -> TrainResult:
                                    create=info.is_main)
         with StopRequest(out / CHECKPOINT, interval) as stop:
             run = build_run(cfg, info, device)
-            if cfg.run.resume:
-                restore(run, out / CHECKPOINT)
+            if cfg.run.resume or source is not None:
+                restore(run, source or out / CHECKPOINT)
             logger = Logger(run, out) if info.is_main else None
             last: dict[str, float] = {}
             first = True
