@@ -3,7 +3,7 @@
 ``torch.optim.Adam`` steps each parameter tensor in Python unless told otherwise on a
 CPU; its fused kernel updates them all in one call. For the ``cpu`` preset's policy (55
 tensors, 2.4 M weights, one thread) a step took 8.7 ms unfused and 1.7 ms fused
-(measured 2026-12-06), and PPO takes ten of them per update. The arithmetic is Adam's
+(measured 2026-12-06), and PPO takes up to ten of them per update. The arithmetic is Adam's
 either way (the rounding may differ in the last bit); the state dict has the same form,
 so checkpoints load into either.
 """
