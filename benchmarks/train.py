@@ -13,12 +13,16 @@ alone and with a second process spinning on one core, and prints the ratio (a ru
 keep at least half its speed when another one shares a 2-core machine).
 
 Usage: ``python benchmarks/train.py [--presets cpu paper] [--methods no-com ours]
-[--updates 2] [--torch-threads 0] [--render-threads 1] [--encoder FILE] [--contended]``.
+[--updates 2] [--torch-threads 0] [--render-threads 1] [--encoder FILE] [--contended]
+[--profile 20]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import cProfile
+import pstats
 import subprocess
 import sys
 import time
@@ -32,11 +36,14 @@ from collavn.training.presets import preset_config
 from collavn.training.trainer import build_run, collect_rollout, learn, sync_point
 
 
-def measure(cfg: TrainConfig, updates: int) -> tuple[float, float, float]:
+def measure(cfg: TrainConfig, updates: int, profile: int = 0
+            ) -> tuple[float, float, float]:
     """(collection, whole loop) agent-steps/s and the map-training share of the loop.
 
     Map updates run inside collection (the paper trains the map every env step); their
     time is taken out of the collection rate and reported as a share of the loop.
+    ``profile`` > 0 runs collection and learning under ``cProfile`` and prints that many
+    top entries of each (by own time; the rates then include the profiler's overhead).
     """
     run = build_run(cfg, DistInfo(), torch.device(cfg.run.device))
     sync_point(run)
@@ -55,13 +62,20 @@ def measure(cfg: TrainConfig, updates: int) -> tuple[float, float, float]:
 
     run.maps.train = timed_map_train
     collect_s = total_s = 0.0
+    profilers = (cProfile.Profile(), cProfile.Profile()) if profile else None
     for _ in range(updates):
         t0 = time.perf_counter()
-        rollout, _ = collect_rollout(run)
+        with profilers[0] if profilers else contextlib.nullcontext():
+            rollout, _ = collect_rollout(run)
         t1 = time.perf_counter()
-        learn(run, rollout)
+        with profilers[1] if profilers else contextlib.nullcontext():
+            learn(run, rollout)
         collect_s += t1 - t0
         total_s += time.perf_counter() - t0
+    if profilers:
+        for name, profiler in zip(("collection", "learning"), profilers, strict=True):
+            print(f"--- {cfg.method}: {name}, {updates} updates, top {profile} by own time")
+            pstats.Stats(profiler).sort_stats("tottime").print_stats(profile)
     steps = updates * cfg.ppo.rollout_steps * cfg.run.num_envs * cfg.env.num_agents
     return steps / (collect_s - map_s), steps / total_s, map_s / total_s
 
@@ -98,6 +112,8 @@ def main() -> None:
     parser.add_argument("--paper-envs", type=int, default=2)
     parser.add_argument("--paper-rollout", type=int, default=4)
     parser.add_argument("--scenes", type=int, default=8, help="training scenes to load")
+    parser.add_argument("--profile", type=int, default=0, metavar="N",
+                        help="print the top N cProfile entries of collection and learning")
     args = parser.parse_args()
     print(f"{args.updates} updates, torch threads {args.torch_threads or 'auto'}, "
           f"render threads {args.render_threads}, encoder {args.encoder or 'none (pixels)'}")
@@ -107,7 +123,7 @@ def main() -> None:
     for preset in args.presets:
         for method in args.methods:
             cfg = row(preset, method, args)
-            collect, loop, share = measure(cfg, args.updates)
+            collect, loop, share = measure(cfg, args.updates, args.profile)
             line = (f"{preset:<8}{method:<8}{cfg.run.num_envs:>5}{cfg.ppo.rollout_steps:>4}"
                     f"{collect:>14.1f}{loop:>11.1f}{share:>10.0%}")
             if args.contended:
