@@ -216,3 +216,5 @@ def test_gt_maps_mark_every_depth_hit_in_its_cell(open_room):
     want[:, :, 1, m // 2 - body:m // 2 + body, m // 2 - body:m // 2 + body] = 1.0
     np.testing.assert_array_equal(maps, want)
     assert want[:, :, 0].sum() > 0 and want[:, :, 1].sum() > want[:, :, 0].sum()
+    with pytest.raises(ValueError, match=r"depth \(2, 2, 16, 32\) does not fit 2×2 panoramas"):
+        sensors.gt_maps(np.zeros((2, 2, 3)), depth[..., :32])

@@ -479,14 +479,21 @@ def test_map_fifo_push_in_batches_equals_push_one_by_one():
 
     rng = np.random.default_rng(3)
     batched, single = MapFIFO(capacity=5), MapFIFO(capacity=5)
+    history: list[np.ndarray] = []
     for count in (2, 4, 0, 7, 1, 5, 3):  # wraps around, and once more than fit
         x = rng.normal(size=(count, 2))
+        history += list(x)
         batched.push({"x": x, "y": x.sum(1).astype(np.float32)})
         for row in x:
             single.push({"x": row[None], "y": row.sum(keepdims=True).astype(np.float32)})
         assert (batched.size, batched.cursor) == (single.size, single.cursor)
         np.testing.assert_array_equal(batched.data["x"], single.data["x"])
         np.testing.assert_array_equal(batched.data["y"], single.data["y"])
+        # it holds exactly the newest samples, the newest just before the cursor
+        newest = history[-batched.size:]
+        held = batched.data["x"][:batched.size]
+        assert sorted(map(tuple, held)) == sorted(map(tuple, newest))
+        np.testing.assert_array_equal(batched.data["x"][batched.cursor - 1], history[-1])
     assert batched.size == 5
 
 

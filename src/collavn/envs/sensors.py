@@ -105,6 +105,10 @@ class Sensors:
             ``(E, N, 2, M, M)`` float32 with ``M = config.gt_map_size``.
         """
         e, n = poses.shape[:2]
+        want = (e, n, self.panorama.height, self.panorama.width)
+        if tuple(depth.shape) != want:  # the kernel reads one ray per pixel: no broadcasting
+            raise ValueError(f"gt_maps: depth {tuple(depth.shape)} does not fit {e}×{n} "
+                             f"panoramas; expected {want}")
         m = self.config.gt_map_size
         nav = self.scene.nav.config
         res = nav.resolution
