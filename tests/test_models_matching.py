@@ -46,7 +46,7 @@ def test_profile_equals_brute_force_normalised_correlation():
     with torch.no_grad():
         feats, tmpl = m.features(pano, wrap=True), m.features(goal)
         prof = m.profile(pano, goal)
-    for k, (h, w) in enumerate(m.templates):
+    for k, (h, w) in enumerate(m.template_hw):
         t = F.interpolate(tmpl, size=(h, w), mode="bilinear", align_corners=False)
         t = (t - t.mean()).flatten(1)
         top = (8 - h) // 2

@@ -314,6 +314,54 @@ def test_the_ring_readout_turns_with_the_panorama():
     torch.testing.assert_close(after["distance"], before["distance"])
 
 
+def test_the_goal_features_are_reused_only_while_goals_weights_and_modes_stay(monkeypatch):
+    torch.manual_seed(0)
+    frames = FramePerception(TINY_MODEL).eval()
+    gen = torch.Generator().manual_seed(2)
+    pan = torch.randint(0, 256, (4, *TINY_MODEL.panorama_shape), generator=gen,
+                        dtype=torch.uint8)
+    goals = torch.randint(0, 256, (4, *TINY_MODEL.goal_shape), generator=gen,
+                          dtype=torch.uint8)
+    computed = []
+    real = frames._compute_goal_features
+    monkeypatch.setattr(frames, "_compute_goal_features",
+                        lambda goal: computed.append(goal.clone()) or real(goal))
+
+    def see(goal):
+        with torch.no_grad():
+            o, g = frames.see(pan[:len(goal)], goal)
+        with torch.enable_grad():  # the reference: no cache with gradients on
+            ref = frames.see(pan[:len(goal)], goal)
+        assert torch.equal(o, ref[0].detach()) and torch.equal(g, ref[1].detach())
+        return g
+
+    g0 = see(goals)
+    assert len(computed) == 2  # the no-grad call filled the cache; the reference ran
+    assert torch.equal(see(goals.clone()), g0) and len(computed) == 3  # a hit
+    changed = goals.clone()
+    changed[3, 1, 5, 7] ^= 1  # one new goal in one env: the whole batch is recomputed
+    see(changed)
+    assert len(computed) == 5 and torch.equal(computed[3], changed)
+    with torch.no_grad():
+        frames.goal_encoder.trunk[0].weight.mul_(1.5)  # any in-place change of a weight
+    g1 = see(changed)
+    assert len(computed) == 7 and not torch.equal(g1, g0)
+    frames.load_state_dict(FramePerception(TINY_MODEL).state_dict())
+    see(changed)
+    assert len(computed) == 9
+    see(changed[:2])  # another batch size
+    assert len(computed) == 11
+    frames.train()
+    see(changed[:2])
+    assert len(computed) == 12  # the small CNN has no batch norm or dropout: still a hit
+    frames.goal_encoder.head.append(torch.nn.Dropout(0.0))  # a layer with a mode
+    see(changed[:2])
+    assert len(computed) == 14  # in training mode it is never reused
+    frames.eval()  # the kept result is still that of these goals and weights
+    see(changed[:2])
+    assert len(computed) == 15
+
+
 def test_the_ring_readout_refuses_what_it_cannot_read(tmp_path):
     with pytest.raises(ValueError, match=r"readout\.ring reads the goal matcher's"):
         dataclasses.replace(RING_MODEL, goal_match=MatchConfig(enabled=False))

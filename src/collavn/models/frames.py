@@ -14,6 +14,7 @@ pretrained encoder's state dict has exactly the tower's parameter names
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 import torch
@@ -23,6 +24,10 @@ from collavn.models.config import ModelConfig
 from collavn.models.encoders import make_encoder, with_depth
 from collavn.models.matching import GoalMatcher
 from collavn.models.readout import PerceptionReadout, RingReadout
+
+#: Layers whose training mode changes state or output; :meth:`FramePerception.goal_features`
+#: does not reuse results while one of them is in training mode.
+_MODAL = (nn.modules.batchnorm._BatchNorm, nn.modules.dropout._DropoutNd)
 
 #: Submodules of :class:`FramePerception` (prefixes of its state-dict keys).
 FRAME_MODULES = ("panorama_encoder", "goal_encoder", "goal_matcher", "readout")
@@ -73,6 +78,8 @@ class FramePerception(nn.Module):
         elif r.enabled:
             self.readout = PerceptionReadout(emb, self.pair_goal_size, r.bins, r.hidden)
         self.goal_size = self.pair_goal_size + r.size
+        #: :meth:`goal_features`' last result: key, goals, embedding, templates.
+        self._goal_cache: tuple[Any, Tensor, Tensor, list[Tensor] | None] | None = None
 
     def see(self, panorama: Tensor, goal: Tensor, depth: Tensor | None = None
             ) -> tuple[Tensor, Tensor]:
@@ -97,12 +104,53 @@ class FramePerception(nn.Module):
         o = self.panorama_encoder(
             with_depth(panorama, depth, self.max_depth, "ModelConfig.frame_depth")
             if self.frame_depth else panorama)
-        g = self.goal_encoder(goal)
+        g, templates = self.goal_features(goal)
         ring = None
         if self.goal_matcher is not None:
-            match, ring = self.goal_matcher.match(panorama, goal)
+            assert templates is not None
+            match, ring = self.goal_matcher.match(panorama, templates)
             g = torch.cat([g, match], dim=1)
         return o, g, ring
+
+    def goal_features(self, goal: Tensor) -> tuple[Tensor, list[Tensor] | None]:
+        """The goal encoder's embedding and the matcher's templates (``None``: no matcher).
+
+        A goal image is fixed for an episode, and collection and evaluation see the same
+        batch of goals for many steps. So without gradients the last batch's result is
+        kept and returned again while the goals, the weights (each parameter's storage
+        and version counter) and the modes stay the same; any change — a new episode in
+        one env, an optimizer step, ``load_state_dict``, a move to another device —
+        recomputes the whole batch. Results are therefore bit-identical to recomputing
+        every step (tested), and the goal encoder runs about once per episode instead
+        of once per step.
+        """
+        if torch.is_grad_enabled() or not self._goal_cacheable():
+            return self._compute_goal_features(goal)
+        key = self._goal_key()
+        hit = self._goal_cache
+        if (hit is not None and hit[0] == key and hit[1].shape == goal.shape
+                and hit[1].dtype == goal.dtype and hit[1].device == goal.device
+                and torch.equal(hit[1], goal)):
+            return hit[2], hit[3]
+        emb, templates = self._compute_goal_features(goal)
+        self._goal_cache = (key, goal.clone(), emb, templates)
+        return emb, templates
+
+    def _compute_goal_features(self, goal: Tensor) -> tuple[Tensor, list[Tensor] | None]:
+        return (self.goal_encoder(goal),
+                None if self.goal_matcher is None else self.goal_matcher.templates(goal))
+
+    def _goal_modules(self) -> list[nn.Module]:
+        return [self.goal_encoder] + ([] if self.goal_matcher is None else [self.goal_matcher])
+
+    def _goal_cacheable(self) -> bool:
+        """No layer of the goal path changes state or output by mode (batch norm, dropout)."""
+        return not any(m.training and isinstance(m, _MODAL) for top in self._goal_modules()
+                       for m in top.modules())
+
+    def _goal_key(self) -> tuple[tuple[int, int], ...]:
+        return tuple((t.data_ptr(), t._version) for top in self._goal_modules()
+                     for t in itertools.chain(top.parameters(), top.buffers()))
 
     def frame_modules(self) -> list[nn.Module]:
         """The submodules named in :data:`FRAME_MODULES` that exist."""

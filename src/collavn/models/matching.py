@@ -50,7 +50,7 @@ class GoalMatcher(nn.Module):
         self.trunk = nn.Sequential(
             nn.Conv2d(3, learned, 5, 2, 2), nn.ReLU(inplace=True),
             nn.Conv2d(learned, learned, 3, 2, 1))
-        self.templates = [self._template_hw(s) for s in cfg.scales]
+        self.template_hw = [self._template_hw(s) for s in cfg.scales]
         self.head = nn.Sequential(nn.Linear(len(cfg.scales) * self.grid_w, cfg.output_size),
                                   nn.ReLU())
         self.output_size = cfg.output_size
@@ -80,32 +80,47 @@ class GoalMatcher(nn.Module):
         Both the template and each panorama window are centred (mean over channels and
         cells) before the cosine, so a uniform brightness offset does not match.
         """
-        return self._profile(self.features(panorama, wrap=True), self.features(goal))
+        return self._profile(self.features(panorama, wrap=True), self.templates(goal))
 
     @property
     def ring_channels(self) -> int:
         """Channels of :meth:`match`'s ring: every row's features, then the profile."""
-        return self.channels * self.grid_h + len(self.templates)
+        return self.channels * self.grid_h + len(self.template_hw)
 
-    def match(self, panorama: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
+    def templates(self, goal: Tensor) -> list[Tensor]:
+        """The goal image's features at each scale, centred: ``(B, channels, h_s, w_s)``.
+
+        They depend on the goal image only, so a caller that sees the same goal for many
+        steps can compute them once (:class:`~collavn.models.frames.FramePerception`
+        does) and pass them to :meth:`match`.
+        """
+        feats = self.features(goal)
+        out = []
+        for h, w in self.template_hw:
+            t = F.interpolate(feats, size=(h, w), mode="bilinear", align_corners=False)
+            out.append(t - t.mean(dim=(1, 2, 3), keepdim=True))
+        return out
+
+    def match(self, panorama: Tensor, goal: Tensor | list[Tensor]
+              ) -> tuple[Tensor, Tensor]:
         """The match vector ``(B, output_size)`` and the **ring** ``(B, ring_channels, W/4)``.
 
-        The ring is what the panorama shows in each feature column — the features of all
-        its rows (so the height of the floor's edge, i.e. the distance to a wall, is
-        there) — with the goal's similarity profile in that column. It is egocentric like
-        the profile: rolling the panorama by ``k`` feature columns rolls it by ``k``.
+        ``goal``: the goal images, or their :meth:`templates`. The ring is what the
+        panorama shows in each feature column — the features of all its rows (so the
+        height of the floor's edge, i.e. the distance to a wall, is there) — with the
+        goal's similarity profile in that column. It is egocentric like the profile:
+        rolling the panorama by ``k`` feature columns rolls it by ``k``.
         """
         pano = self.features(panorama, wrap=True)
-        prof = self._profile(pano, self.features(goal))
+        prof = self._profile(pano, goal if isinstance(goal, list) else self.templates(goal))
         ring = torch.cat([pano.flatten(1, 2), prof], dim=1)
         return self.head(prof.flatten(1)), ring
 
-    def _profile(self, pano: Tensor, tmpl: Tensor) -> Tensor:
+    def _profile(self, pano: Tensor, templates: list[Tensor]) -> Tensor:
         b, c = pano.shape[:2]
         out = []
-        for h, w in self.templates:
-            t = F.interpolate(tmpl, size=(h, w), mode="bilinear", align_corners=False)
-            t = t - t.mean(dim=(1, 2, 3), keepdim=True)
+        for t in templates:
+            h, w = t.shape[-2:]
             top = (self.grid_h - h) // 2
             rows = pano[:, :, top:top + h]
             left = w // 2  # window centred on each column, wrapping around
