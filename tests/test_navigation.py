@@ -169,3 +169,45 @@ def test_a_goal_walled_in_by_robots_gets_a_field_not_a_crash(door_scene):
     finite = np.isfinite(field.grid)
     assert finite[r - 1:r + 2, c].all() and finite.sum() == 3
     np.testing.assert_allclose(field.grid[r - 1:r + 2, c], [RES, 0.0, RES], atol=0.02 * RES)
+
+
+def _distance_as_arrays(field, xy):
+    """The array form the compiled ``GeodesicField.distance`` replaced (the reference)."""
+    nav = field.nav
+    xy = np.asarray(xy, dtype=np.float64)
+    fx = (xy[..., 0] - nav.origin[0]) / nav.resolution - 0.5
+    fy = (xy[..., 1] - nav.origin[1]) / nav.resolution - 0.5
+    with np.errstate(invalid="ignore"):
+        c0, r0 = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
+    h, w = nav.shape
+    best = np.full(xy.shape[:-1], np.inf)
+    for dr in (0, 1):
+        for dc in (0, 1):
+            r, c = r0 + dr, c0 + dc
+            ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+            d = np.full(best.shape, np.inf)
+            d[ok] = field.grid[r[ok], c[ok]]
+            best = np.minimum(best, d + np.linalg.norm(xy - nav.cell_centers(r, c), axis=-1))
+    near = np.linalg.norm(xy - field.goal, axis=-1)
+    best = np.where(near <= nav.resolution, np.minimum(best, near), best)
+    return np.maximum(best, near)
+
+
+def test_the_compiled_distance_is_bit_equal_to_the_array_form(door_scene):
+    nav = door_scene.nav
+    field = door_scene.geodesic_field((8.0, 3.5))
+    rng = np.random.default_rng(0)
+    lo = nav.origin - 1.0
+    hi = nav.origin + np.array(nav.shape[::-1]) * nav.resolution + 1.0
+    pts = rng.uniform(lo, hi, size=(4000, 2))  # inside, outside, walls, unreachable
+    pts[:50] = field.goal + rng.normal(0, nav.resolution, (50, 2))  # the goal's cell
+    pts[50:60] = nav.cell_centers(*nav.to_cell(pts[50:60]))  # exactly on cell centres
+    got, ref = field.distance(pts), _distance_as_arrays(field, pts)
+    assert np.isfinite(ref).sum() > 1000 and np.isinf(ref).sum() > 100
+    assert np.array_equal(got, ref)  # bit for bit, inf included
+    assert field.distance(pts.reshape(40, 100, 2)).shape == (40, 100)
+    assert np.array_equal(field.distance(pts.reshape(40, 100, 2)), ref.reshape(40, 100))
+    odd = np.array([[np.nan, 3.0], [np.inf, 3.0], [2.0, -np.inf]])
+    with np.errstate(invalid="ignore"):
+        odd_ref = _distance_as_arrays(field, odd)
+    np.testing.assert_array_equal(field.distance(odd), odd_ref)  # nan, inf, inf

@@ -157,9 +157,13 @@ class World:
 
     def _distances(self, e: int) -> np.ndarray:
         out = np.empty(self.num_agents)
-        for g in np.unique(self.goal[e], axis=0):
-            mine = np.all(self.goal[e] == g, axis=1)
-            out[mine] = self.scene.geodesic_field(g).distance(self.position[e][mine])
+        done = np.zeros(self.num_agents, dtype=bool)
+        for i in range(self.num_agents):  # once per distinct goal (CommonGoal: once)
+            if not done[i]:
+                mine = np.all(self.goal[e] == self.goal[e][i], axis=1)
+                out[mine] = self.scene.geodesic_field(self.goal[e][i]).distance(
+                    self.position[e][mine])
+                done |= mine
         return out
 
     # -------------------------------------------------------------- odometry
