@@ -122,7 +122,8 @@ class FramePerception(nn.Module):
         one env, an optimizer step, ``load_state_dict``, a move to another device —
         recomputes the whole batch. Results are therefore bit-identical to recomputing
         every step (tested), and the goal encoder runs about once per episode instead
-        of once per step.
+        of once per step. The returned tensors are the kept ones: read them, do not
+        modify them in place.
         """
         if torch.is_grad_enabled() or not self._goal_cacheable():
             return self._compute_goal_features(goal)

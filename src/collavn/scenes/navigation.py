@@ -7,9 +7,8 @@ grid are flipped vertically for display so that +y points up.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import math
+from dataclasses import asdict, dataclass
 
 import numba
 import numpy as np
