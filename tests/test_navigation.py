@@ -211,3 +211,5 @@ def test_the_compiled_distance_is_bit_equal_to_the_array_form(door_scene):
     with np.errstate(invalid="ignore"):
         odd_ref = _distance_as_arrays(field, odd)
     np.testing.assert_array_equal(field.distance(odd), odd_ref)  # nan, inf, inf
+    with pytest.raises(ValueError, match=r"\(\.\.\., 2\) points, got shape \(4, 3\)"):
+        field.distance(np.zeros((4, 3)))  # not silently read as six 2-D points

@@ -261,6 +261,8 @@ class GeodesicField:
         the same order as the array form it replaced, tested bit-equal.
         """
         xy = np.asarray(xy, dtype=np.float64)
+        if xy.ndim == 0 or xy.shape[-1] != 2:
+            raise ValueError(f"distance takes (..., 2) points, got shape {xy.shape}")
         flat = np.ascontiguousarray(xy.reshape(-1, 2))
         out = _distance_kernel(flat, self.grid, float(self.nav.origin[0]),
                                float(self.nav.origin[1]), float(self.nav.resolution),
