@@ -380,6 +380,34 @@ def match_and_select(query_psi: Tensor, bias: Tensor, keys: Tensor | Entries,
     return Message(*(f.unflatten(0, (steps, e)) for f in fields))
 
 
+def hearing_margin(scores: Tensor, active: Tensor, cfg: CommConfig) -> tuple[Tensor, Tensor]:
+    """How far each agent is from hearing a teammate: min(s_{n,n}, max_{m≠n} s_{n,m}) − η.
+
+    A teammate's value reaches agent ``n`` exactly when its own gate opens (s_{n,n} > η)
+    and so does the link to at least one active teammate (s_{n,m} > η): when this margin
+    is > 0. Differentiable in the scores (min and max pass the gradient to one of them).
+
+    Args:
+        scores: ``(..., N, N)`` the agents' scores (:attr:`Message.scores`).
+        active: ``(..., N)`` bool.
+        cfg: Communication settings (η).
+
+    Returns:
+        The margin ``(..., N)`` and a mask ``(..., N)`` of the agents it means anything
+        for: active, with at least one active teammate.
+    """
+    n = active.shape[-1]
+    flat = active.reshape(-1, n)
+    eta = selection_threshold(flat, cfg).to(scores.dtype).reshape(*active.shape[:-1], 1)
+    eye = torch.eye(n, dtype=torch.bool, device=scores.device)
+    teammate = active.unsqueeze(-2) & ~eye  # (..., N, N): column m active, m ≠ n
+    best = scores.masked_fill(~teammate, float("-inf")).amax(dim=-1)
+    own = torch.diagonal(scores, dim1=-2, dim2=-1)
+    has_teammate = active & teammate.any(dim=-1)
+    margin = torch.minimum(own, best.masked_fill(~has_teammate, 0.0)) - eta
+    return margin, has_teammate
+
+
 def _message_fields(message: Message) -> tuple[Tensor, ...]:
     """A message's fields in order (``dataclasses.astuple`` would deep-copy tensors)."""
     return tuple(getattr(message, f.name) for f in fields(message))

@@ -337,6 +337,8 @@ class EvaluateOutput:
             :meth:`ActorCritic.evaluate_actions` (an expert's actions), if any.
         belief: ``(T, E, N, K + 1)`` the goal-belief head's output
             (``ModelConfig.goal_belief``; ``None`` without the head).
+        scores: ``(T, E, N, N)`` the communication scores s_{n,m} (with gradients),
+            when :meth:`ActorCritic.evaluate_actions` was asked for them.
     """
 
     log_prob: Tensor
@@ -344,6 +346,7 @@ class EvaluateOutput:
     value: Tensor
     target_log_prob: Tensor | None = None
     belief: Tensor | None = None
+    scores: Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -474,7 +477,8 @@ class ActorCritic(nn.Module):
     def evaluate_actions(self, obs: Mapping[str, Tensor], state: AgentState,
                          episode_start: Tensor, raw_actions: Tensor,
                          percepts: Mapping[str, Tensor] | None = None,
-                         targets: Tensor | None = None) -> EvaluateOutput:
+                         targets: Tensor | None = None,
+                         scores: bool = False) -> EvaluateOutput:
         """Re-run stored sequences for recurrent PPO (and imitation).
 
         The networks without a recurrence (encoders, map encoder, feature projection) run
@@ -493,6 +497,8 @@ class ActorCritic(nn.Module):
             targets: ``(T, E, N, 2)`` other actions to score (PPO's behaviour-cloning
                 term: the expert's actions), under the same distribution with its σ
                 detached: only the means (and mixture weights) learn from them.
+            scores: Also return every step's communication scores (PPO's message
+                floor, ``--ppo.message-floor``).
         """
         run = self._unroll(obs, state, episode_start, percepts)
         dist = action_distribution(run.mean, run.log_std, run.logits)
@@ -503,7 +509,9 @@ class ActorCritic(nn.Module):
         belief = (self._over_steps(AgentTower.belief, run.actor_h)[0]
                   if self.cfg.goal_belief else None)
         return EvaluateOutput(dist.log_prob(raw_actions), dist.entropy(), run.value,
-                              target_log_prob, belief)
+                              target_log_prob, belief,
+                              torch.stack([m.scores for m in run.messages]) if scores
+                              else None)
 
     @torch.no_grad()
     def mean_actions(self, obs: Mapping[str, Tensor], state: AgentState,

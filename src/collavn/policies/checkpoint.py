@@ -126,6 +126,8 @@ LATER_FIELDS: dict[str, Any] = {
     "ppo.bc_target": "expert",
     "ppo.bc_steps": "all",
     "run.resume_from": "",
+    "ppo.message_floor": 0.0,
+    "ppo.message_floor_coef": 1.0,
 }
 
 

@@ -113,6 +113,19 @@ class PPOConfig:
     rate Adam's normalised steps move ψ's matrix coherently, every pair's score at once,
     and the gates drift shut (below η they get almost no gradient back); 0.1 kept them
     open in our runs (README, "Why the gates close")."""
+    message_floor: float = 0.0
+    """Keep messages flowing: the share p of agent-steps (those with an active teammate)
+    in which a teammate's value should reach the agent (0 = off; methods that
+    communicate). PPO's loss gains ``message_floor_coef × mean relu(τ − margin)`` over
+    the ⌈p·n⌉ agent-steps of each mini-batch with the largest margin = min(s_{n,n},
+    max_{m≠n} s_{n,m}) − η (> 0 exactly when a message arrives; τ the gate's
+    temperature): when fewer than p of them hear a teammate, the ones closest to hearing
+    are pushed over η. Which steps talk stays the policy's choice; only the rate is held
+    up. Without it the gates drift shut during PPO, and a closed gate's straight-through
+    gradient (σ' at (s − η)/τ ≈ −9, ~10⁻⁴) cannot reopen it (README, "Why the gates
+    close")."""
+    message_floor_coef: float = 1.0
+    """Weight of the message floor's term in PPO's loss."""
     bc_coef: float = 0.0
     """Weight of a behaviour-cloning term in PPO's loss: the negative log-likelihood of
     the expert's action (``--imitation.expert``, ``--imitation.sight``) in every state PPO
@@ -159,6 +172,11 @@ class PPOConfig:
         if self.bc_decay > 1:
             raise ConfigError(f"--ppo.bc-decay must be in (0, 1], got {self.bc_decay}")
         check_number("--ppo.comm-lr-scale", self.comm_lr_scale, allow_minimum=True)
+        check_number("--ppo.message-floor", self.message_floor, allow_minimum=True)
+        if self.message_floor > 1:
+            raise ConfigError(f"--ppo.message-floor is a share of agent-steps in [0, 1], "
+                              f"got {self.message_floor}")
+        check_number("--ppo.message-floor-coef", self.message_floor_coef, allow_minimum=True)
         for name in ("rollout_steps", "num_minibatches", "update_epochs"):
             check_count(f"--ppo.{name.replace('_', '-')}", getattr(self, name))
         check_count("--ppo.critic-warmup", self.critic_warmup, 0)
@@ -379,6 +397,10 @@ class TrainConfig:
                         goal_shape=(3, self.env.goal_size, self.env.goal_size),
                         comm=replace(self.model.comm, variant=self.method_spec.comm))
         object.__setattr__(self, "model", model)
+        if self.ppo.message_floor > 0 and (self.method_spec.imitation
+                                           or self.method_spec.comm == "none"):
+            raise ConfigError(f"--ppo.message-floor keeps PPO's messages flowing; method "
+                              f"{self.method!r} sends none (use ours or no-mem)")
         if self.ppo_clones and self.ppo.bc_target == "init" and not self.run.init_from:
             raise ConfigError("--ppo.bc-target init imitates the --init-from policy: give "
                               "--init-from CHECKPOINT (or use --ppo.bc-target expert)")

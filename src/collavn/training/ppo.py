@@ -9,6 +9,7 @@ along the sequence.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -16,6 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from collavn.models.communication import hearing_margin
 from collavn.models.policy import ActorCritic, AgentTower
 from collavn.training.config import PPOConfig
 from collavn.training.rollout import Rollout
@@ -37,6 +39,8 @@ class PPOStats:
             expert's actions, or the ``--init-from`` policy's with ``--ppo.bc-target
             init``; 0 without ``--ppo.bc-coef``).
         bc_weight: The weight it had in ``loss``.
+        message_floor_loss: The message floor's term before its weight (0 without
+            ``--ppo.message-floor``, or while every floor step hears a teammate).
         grad_norm: Norm of the whole gradient before clipping.
         comm_grad_norm: Norm of the communication parameters' part of it (0 without
             messages): how hard the losses pull on what is sent and when gates open.
@@ -53,6 +57,7 @@ class PPOStats:
     comm_grad_norm: float = 0.0
     bc_loss: float = 0.0
     bc_weight: float = 0.0
+    message_floor_loss: float = 0.0
 
 
 def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
@@ -62,6 +67,19 @@ def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
     """
     m = mask.to(x.dtype)
     return (x * m).sum() / m.sum().clamp(min=torch.finfo(x.dtype).tiny)
+
+
+def message_floor_loss(margin: Tensor, mask: Tensor, floor: float, width: float) -> Tensor:
+    """``mean relu(width − margin)`` over the ⌈floor·n⌉ largest of the ``n`` masked margins.
+
+    ``margin`` from :func:`~collavn.models.communication.hearing_margin` (> 0: a message
+    arrives). Zero when at least that many margins reach ``width``, or none is masked.
+    """
+    m = margin[mask]
+    if floor <= 0 or m.numel() == 0:
+        return margin.new_zeros(())
+    k = max(1, math.ceil(floor * m.numel()))
+    return torch.relu(width - m.topk(k).values).mean()
 
 
 def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Tensor,
@@ -74,13 +92,17 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
     targets stored in ``batch.expert_actions`` (the expert's actions or the anchor's),
     each step's term times ``batch.weights`` when the rollout has them
     (``--ppo.bc-steps sighted``: 1 once the goal was in sight, else 0).
+    ``cfg.message_floor`` > 0 adds ``cfg.message_floor_coef ×``
+    :func:`message_floor_loss` of the communication scores (not while ``critic_only``).
     """
     if bc_weight > 0 and batch.expert_actions is None:
         raise ValueError("a behaviour-cloning weight needs a rollout with expert_actions "
                          "(collected with --ppo.bc-coef > 0)")
+    floor = cfg.message_floor > 0 and not critic_only
     out = model.evaluate_actions(batch.obs, batch.initial_state, batch.episode_start,
                                  batch.raw_actions, batch.percepts,
-                                 batch.expert_actions if bc_weight > 0 else None)
+                                 batch.expert_actions if bc_weight > 0 else None,
+                                 scores=floor)
     mask = batch.active
     adv = advantages
     if cfg.norm_adv:
@@ -98,12 +120,19 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
     if out.target_log_prob is not None:  # a mean over active steps, weighted per step
         weights = 1.0 if batch.weights is None else batch.weights
         bc_loss = -masked_mean(out.target_log_prob * weights, mask)
+    floor_loss = torch.zeros(())
+    if floor:
+        assert out.scores is not None
+        comm = model.cfg.comm
+        margin, hears = hearing_margin(out.scores, mask, comm)
+        floor_loss = message_floor_loss(margin, hears, cfg.message_floor, comm.temperature)
     loss = (cfg.vf_coef * value_loss if critic_only
             else policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
-            + bc_weight * bc_loss)
+            + bc_weight * bc_loss + cfg.message_floor_coef * floor_loss)
     with torch.no_grad():
         parts = {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy,
                  "bc_loss": bc_loss, "bc_weight": torch.tensor(bc_weight),
+                 "message_floor_loss": floor_loss,
                  "loss": loss, "approx_kl": masked_mean((ratio - 1) - log_ratio, mask),
                  "clip_fraction": masked_mean(((ratio - 1).abs() > cfg.clip_coef).float(),
                                               mask)}
