@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 import torch
 
-from collavn.errors import CheckpointError
+from collavn.cli.train import parse
+from collavn.errors import CheckpointError, ConfigError
 from collavn.policies.checkpoint import load_checkpoint, load_policy, save_checkpoint
 from collavn.training.checkpoint import saved_config
-from collavn.training.trainer import CHECKPOINT, train
+from collavn.training.trainer import CHECKPOINT, SNAPSHOTS, train
 from training_fixtures import tiny_config
 
 
@@ -54,10 +55,12 @@ def test_corrupt_or_foreign_files_are_refused(tmp_path):
 
 @pytest.fixture(scope="module")
 def resumed_and_straight(tmp_path_factory):
-    """4 updates straight vs 2 updates, stop, resume for 2 more (sync every 2)."""
+    """4 updates straight vs 2 updates, stop, resume for 2 more (sync every 2); both keep
+    a snapshot per agent-steps of one update (written at the sync points: 2 and 4)."""
     root = tmp_path_factory.mktemp("resume")
     cfg = tiny_config("ours", out=str(root / "straight"))
     per_update = cfg.ppo.rollout_steps * cfg.run.num_envs * cfg.env.num_agents
+    cfg = cfg.with_run(snapshot_every=per_update)
     straight = train(cfg.with_run(total_steps=4 * per_update))
     part = cfg.with_run(out=str(root / "resumed"), total_steps=2 * per_update)
     first = train(part)
@@ -85,6 +88,30 @@ def test_resume_gives_bit_identical_parameters(resumed_and_straight):
 
     init = ActorCritic(fresh.model).state_dict()
     assert any(not torch.equal(init[k], a[k]) for k in a)
+
+
+def test_snapshots_keep_the_checkpoints_of_a_learning_curve(resumed_and_straight):
+    cfg, root, *_ = resumed_and_straight
+    per_update = cfg.run.snapshot_every
+    names = [f"checkpoint_{2 * per_update:09d}.pt", f"checkpoint_{4 * per_update:09d}.pt"]
+    for run in ("straight", "resumed"):  # the resumed run goes on from its marks
+        assert sorted(p.name for p in (root / run / SNAPSHOTS).iterdir()) == names, run
+    early, last = (root / "straight" / SNAPSHOTS / n for n in names)
+    assert load_checkpoint(early)["iteration"] == 2
+    assert load_checkpoint(last)["iteration"] == 4
+    final = _params(root / "straight" / CHECKPOINT)
+    for k, v in _params(last).items():
+        assert torch.equal(v, final[k]), k
+    assert any(not torch.equal(v, final[k]) for k, v in _params(early).items())
+    for name in names:  # resumed == straight, snapshot by snapshot
+        a = _params(root / "straight" / SNAPSHOTS / name)
+        b = _params(root / "resumed" / SNAPSHOTS / name)
+        assert all(torch.equal(a[k], b[k]) for k in a), name
+    _, overrides = load_policy(early)  # what `collavn evaluate --policy` loads
+    assert overrides["panorama_width"] == cfg.env.panorama_width
+    with pytest.raises(ConfigError, match="--snapshot-every must be an integer ≥ 0, got -1"):
+        parse(["--method", "no-com", "--snapshot-every", "-1", "--out", "x"])
+    assert parse(["--method", "no-com", "--out", "x"]).run.snapshot_every == 0  # off
 
 
 def test_run_directory_holds_config_and_tensorboard(resumed_and_straight):

@@ -128,6 +128,7 @@ LATER_FIELDS: dict[str, Any] = {
     "run.resume_from": "",
     "ppo.message_floor": 0.0,
     "ppo.message_floor_coef": 1.0,
+    "run.snapshot_every": 0,
 }
 
 

@@ -67,7 +67,7 @@ METHODS: dict[str, MethodSpec] = {
 
 #: Fields that steer a run without changing its results (allowed to differ on resume).
 RUN_CONTROL_FIELDS = ("run.out", "run.resume", "run.resume_from", "run.overwrite",
-                      "run.total_steps", "run.time_budget_minutes",
+                      "run.total_steps", "run.time_budget_minutes", "run.snapshot_every",
                       "run.progress", "run.device", "run.log_interval", "run.torch_threads",
                       "env.render_threads", "run.encoder")
 
@@ -320,6 +320,11 @@ class RunConfig:
     refused)."""
     checkpoint_interval: int = 10
     """Updates between checkpoints; checkpoints are sync points (envs reset, FIFO cleared)."""
+    snapshot_every: int = 0
+    """Also keep the checkpoint each time the run passes a multiple of this many
+    agent-steps, as ``OUT/snapshots/checkpoint_<agent-steps>.pt`` (written at the next
+    checkpoint, so the steps in the name may exceed the multiple): a learning curve to
+    score with ``collavn evaluate --policy``. 0 = keep only the latest checkpoint."""
     log_interval: int = 1
     """Write TensorBoard scalars every this many updates."""
     device: str = "cpu"
@@ -352,6 +357,7 @@ class RunConfig:
                               f"the train seed range), got {self.train_scenes}")
         check_count("--seed", self.seed, 0)
         check_count("--torch-threads", self.torch_threads, 0)
+        check_count("--snapshot-every", self.snapshot_every, 0)
         check_number("--time-budget-minutes", self.time_budget_minutes, allow_minimum=True)
         if self.resume and self.overwrite:
             raise ConfigError("--resume and --overwrite exclude each other: continue the "

@@ -72,6 +72,8 @@ from collavn.training.ppo import comm_parameters, ppo_update
 from collavn.training.rollout import Rollout, compute_gae
 
 CHECKPOINT = "checkpoint.pt"
+#: Folder of ``--snapshot-every`` copies inside a run directory.
+SNAPSHOTS = "snapshots"
 
 
 @dataclass
@@ -538,6 +540,26 @@ def checkpoint_payload(run: Run) -> dict[str, Any]:
             "map_optimizer": run.maps.optimizer.state_dict()}
 
 
+def next_snapshot(run: Run) -> int:
+    """The agent-step count whose passing keeps the next snapshot (0: no snapshots)."""
+    every = run.cfg.run.snapshot_every
+    return (run.agent_steps // every + 1) * every if every else 0
+
+
+def save_checkpoints(out: Path, run: Run, mark: int) -> tuple[Path, int]:
+    """Write ``OUT/checkpoint.pt``, and a snapshot once the run has passed ``mark``.
+
+    The snapshot is the same payload as ``OUT/snapshots/checkpoint_<agent-steps>.pt``.
+    Returns the checkpoint's path and the next mark (see :func:`next_snapshot`).
+    """
+    payload = checkpoint_payload(run)
+    path = save_checkpoint(out / CHECKPOINT, payload)
+    if mark and run.agent_steps >= mark:
+        save_checkpoint(out / SNAPSHOTS / f"checkpoint_{run.agent_steps:09d}.pt", payload)
+        mark = next_snapshot(run)
+    return path, mark
+
+
 def restore(run: Run, path: Path) -> None:
     """Continue from the checkpoint at ``path`` (same config required)."""
     payload = load_checkpoint(path, map_location=run.device)
@@ -613,6 +635,7 @@ def train(cfg: TrainConfig) -> TrainResult:
             if cfg.run.resume or source is not None:
                 restore(run, source or out / CHECKPOINT)
             logger = Logger(run, out) if info.is_main else None
+            mark = next_snapshot(run)
             last: dict[str, float] = {}
             first = True
             while True:
@@ -631,10 +654,10 @@ def train(cfg: TrainConfig) -> TrainResult:
                 if logger is not None:
                     logger.log(run, last)
                     if run.iteration % interval == 0:
-                        save_checkpoint(out / CHECKPOINT, checkpoint_payload(run))
+                        _, mark = save_checkpoints(out, run, mark)
             path = None
             if logger is not None:
-                path = save_checkpoint(out / CHECKPOINT, checkpoint_payload(run))
+                path, mark = save_checkpoints(out, run, mark)
                 logger.close()
         return TrainResult(run.iteration, run.agent_steps, last, path, stop.signum, moved)
     finally:
