@@ -114,6 +114,55 @@ def test_snapshots_keep_the_checkpoints_of_a_learning_curve(resumed_and_straight
     assert parse(["--method", "no-com", "--out", "x"]).run.snapshot_every == 0  # off
 
 
+def test_average_of_snapshots_is_the_mean_of_their_weights(resumed_and_straight, tmp_path,
+                                                           capsys):
+    from collavn.cli import main
+    from collavn.training.checkpoint import average_checkpoints
+
+    _, root, *_ = resumed_and_straight
+    paths = sorted((root / "straight" / SNAPSHOTS).iterdir())
+    assert main(["average", *map(str, paths), "--out", str(tmp_path / "avg.pt")]) == 0
+    assert "averaged 2 checkpoints" in capsys.readouterr().out
+    avg = load_checkpoint(tmp_path / "avg.pt")
+    a, b = (_params(p) for p in paths)
+    floats = 0
+    for k, v in avg["model"].items():
+        if torch.is_floating_point(v):
+            floats += 1
+            assert torch.equal(v, ((a[k].double() + b[k].double()) / 2).float()), k
+        else:  # integer buffers: the later checkpoint's
+            assert torch.equal(v, b[k]), k
+    assert floats > 10 and any(not torch.equal(a[k], b[k]) for k in a)
+    assert avg["iteration"] == 4  # counters and config: the checkpoint with most steps
+    assert [s["agent_steps"] for s in avg["averaged_from"]] == [
+        load_checkpoint(p)["agent_steps"] for p in paths]
+    policy, _ = load_policy(tmp_path / "avg.pt")  # an evaluation policy as any other
+    assert policy is not None
+    # the same inputs give the same weights, in any order
+    again = average_checkpoints(paths[::-1])["model"]
+    assert all(torch.equal(again[k], avg["model"][k]) for k in again)
+
+
+def test_average_refuses_one_file_and_another_configuration(resumed_and_straight, tmp_path,
+                                                            capsys):
+    from collavn.cli import main
+    from collavn.training.checkpoint import average_checkpoints
+
+    _, root, *_ = resumed_and_straight
+    good = root / "straight" / CHECKPOINT
+    with pytest.raises(CheckpointError, match="at least two checkpoints"):
+        average_checkpoints([good])
+    other = load_checkpoint(good)
+    other["config"]["ppo"]["lr"] = 1.0
+    save_checkpoint(tmp_path / "other.pt", {k: v for k, v in other.items() if k != "format"})
+    with pytest.raises(CheckpointError, match=r"another configuration .*ppo\.lr"):
+        average_checkpoints([good, tmp_path / "other.pt"])
+    assert main(["average", str(good), str(tmp_path / "missing.pt"),
+                 "--out", str(tmp_path / "x.pt")]) == 2
+    assert "no checkpoint at" in capsys.readouterr().err
+    assert not (tmp_path / "x.pt").exists()
+
+
 def test_run_directory_holds_config_and_tensorboard(resumed_and_straight):
     cfg, root, *_ = resumed_and_straight
     saved = json.loads((root / "straight" / "config.json").read_text())

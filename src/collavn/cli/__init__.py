@@ -36,6 +36,8 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
                     "Pretrain the frame perception on simulator labels → encoder.pt."),
     ("train",): ("collavn.cli.train", "main",
                  "Train ours / no-mem / no-com (PPO) or il; checkpoints, TensorBoard, resume."),
+    ("average",): ("collavn.cli.average", "Average",
+                   "Average the weights of a run's checkpoints (snapshots) into one policy."),
     ("experiment",): ("collavn.cli.experiment", "Experiment",
                       "The paper's table end to end for a budget: train, evaluate, report."),
 }

@@ -7,11 +7,15 @@ The file format (atomic writes, format version) lives in
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from collavn import configs
 from collavn.errors import CheckpointError, ConfigError
+from collavn.policies.checkpoint import load_checkpoint
 from collavn.training.config import TrainConfig
 
 
@@ -30,6 +34,52 @@ def check_config(payload: dict[str, Any], config: TrainConfig, path: str | Path)
         raise CheckpointError(f"checkpoint {path} was written by a different configuration "
                               f"({_shown(diffs)}); resume with the same settings or start a "
                               f"new --out directory")
+
+
+def average_checkpoints(paths: Sequence[str | Path]) -> dict[str, Any]:
+    """The uniform average of the model weights of checkpoints of one run.
+
+    Stochastic weight averaging: PPO's policy moves between checkpoints, and its
+    success rate with it; the mean of the weights along the end of a run (the
+    ``--snapshot-every`` snapshots of its second half, say) is a policy that scores
+    less by chance where it happened to stop. The checkpoints must share their
+    configuration (the fields that only steer a run, such as ``--total-steps``, aside):
+    one run's snapshots, or a run and its continuation. Floating-point weights and
+    buffers are averaged in float64 and cast back; integer buffers, the config, the
+    counters and the optimizer state are those of the checkpoint with the most
+    agent-steps. The payload records its sources under ``averaged_from``.
+
+    Raises:
+        CheckpointError: fewer than two paths, an unreadable checkpoint, one written
+            by another configuration (naming the fields), or other weight names or
+            shapes.
+    """
+    if len(paths) < 2:
+        raise CheckpointError(f"give at least two checkpoints to average, got {len(paths)}")
+    payloads = [load_checkpoint(path) for path in paths]
+    first = saved_config(payloads[0], paths[0]).identity()
+    for path, payload in zip(paths[1:], payloads[1:], strict=True):
+        diffs = differences(saved_config(payload, path).identity(), first)
+        if diffs:
+            raise CheckpointError(f"checkpoint {path} was written by another configuration "
+                                  f"than {paths[0]} ({_shown(diffs)}); average the "
+                                  f"checkpoints of one run")
+        if {k: v.shape for k, v in payload["model"].items()} != {
+                k: v.shape for k, v in payloads[0]["model"].items()}:
+            raise CheckpointError(f"checkpoint {path} holds other weights than {paths[0]}")
+    base = max(payloads, key=lambda p: int(p["agent_steps"]))
+    model: dict[str, torch.Tensor] = {}
+    for name, value in base["model"].items():
+        if torch.is_floating_point(value):
+            total = sum(p["model"][name].double() for p in payloads)
+            model[name] = (total / len(payloads)).to(value.dtype)
+        else:
+            model[name] = value
+    out = {k: v for k, v in base.items() if k != "format"}
+    out["model"] = model
+    out["averaged_from"] = [{"path": str(path), "agent_steps": int(p["agent_steps"])}
+                            for path, p in zip(paths, payloads, strict=True)]
+    return out
 
 
 def differences(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> list[str]:
