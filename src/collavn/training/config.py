@@ -324,7 +324,8 @@ class RunConfig:
     """Also keep the checkpoint each time the run passes a multiple of this many
     agent-steps, as ``OUT/snapshots/checkpoint_<agent-steps>.pt`` (written at the next
     checkpoint, so the steps in the name may exceed the multiple): a learning curve to
-    score with ``collavn evaluate --policy``. 0 = keep only the latest checkpoint."""
+    score with ``collavn evaluate --policy``, or weights to average with ``collavn
+    average``. 0 = keep only the latest checkpoint."""
     log_interval: int = 1
     """Write TensorBoard scalars every this many updates."""
     device: str = "cpu"
