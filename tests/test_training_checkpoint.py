@@ -136,8 +136,9 @@ def test_average_of_snapshots_is_the_mean_of_their_weights(resumed_and_straight,
     assert avg["iteration"] == 4  # counters and config: the checkpoint with most steps
     assert [s["agent_steps"] for s in avg["averaged_from"]] == [
         load_checkpoint(p)["agent_steps"] for p in paths]
-    policy, _ = load_policy(tmp_path / "avg.pt")  # an evaluation policy as any other
-    assert policy is not None
+    policy, _ = load_policy(tmp_path / "avg.pt")  # an evaluation policy with those weights
+    loaded = policy.model.state_dict()
+    assert all(torch.equal(loaded[k], v) for k, v in avg["model"].items())
     # the same inputs give the same weights, in any order
     again = average_checkpoints(paths[::-1])["model"]
     assert all(torch.equal(again[k], avg["model"][k]) for k in again)

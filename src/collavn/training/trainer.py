@@ -657,7 +657,7 @@ def train(cfg: TrainConfig) -> TrainResult:
                         _, mark = save_checkpoints(out, run, mark)
             path = None
             if logger is not None:
-                path, mark = save_checkpoints(out, run, mark)
+                path, _ = save_checkpoints(out, run, mark)
                 logger.close()
         return TrainResult(run.iteration, run.agent_steps, last, path, stop.signum, moved)
     finally:
