@@ -14,8 +14,8 @@ import torch
 from collavn.cli.train import parse
 from collavn.errors import CheckpointError, ConfigError
 from collavn.policies.checkpoint import load_checkpoint, load_policy, save_checkpoint
-from collavn.training.checkpoint import saved_config
-from collavn.training.trainer import CHECKPOINT, SNAPSHOTS, train
+from collavn.training.checkpoint import SNAPSHOTS, run_snapshots, saved_config
+from collavn.training.trainer import CHECKPOINT, train
 from training_fixtures import tiny_config
 
 
@@ -142,6 +142,14 @@ def test_average_of_snapshots_is_the_mean_of_their_weights(resumed_and_straight,
     # the same inputs give the same weights, in any order
     again = average_checkpoints(paths[::-1])["model"]
     assert all(torch.equal(again[k], avg["model"][k]) for k in again)
+    # a run directory stands for its second half's snapshots: here both (2 and 4 updates)
+    assert main(["average", str(root / "straight"), "--out", str(tmp_path / "run.pt")]) == 0
+    assert "averaged 2 checkpoints" in capsys.readouterr().out
+    by_dir = load_checkpoint(tmp_path / "run.pt")["model"]
+    assert all(torch.equal(by_dir[k], avg["model"][k]) for k in by_dir)
+    per_update = load_checkpoint(paths[0])["agent_steps"] // 2
+    assert run_snapshots(root / "straight", from_steps=3 * per_update) == paths[1:]
+    assert run_snapshots(root / "straight", from_steps=0) == paths
 
 
 def test_average_refuses_one_file_and_another_configuration(resumed_and_straight, tmp_path,
@@ -161,6 +169,17 @@ def test_average_refuses_one_file_and_another_configuration(resumed_and_straight
     assert main(["average", str(good), str(tmp_path / "missing.pt"),
                  "--out", str(tmp_path / "x.pt")]) == 2
     assert "no checkpoint at" in capsys.readouterr().err
+    assert not (tmp_path / "x.pt").exists()
+    # a run directory: no snapshots folder, none late enough, --from-steps with files
+    with pytest.raises(CheckpointError, match=r"holds no snapshots/ folder.*--snapshot-every"):
+        run_snapshots(tmp_path)
+    last = load_checkpoint(good)["agent_steps"]
+    assert main(["average", str(root / "straight"), "--from-steps", str(last + 1),
+                 "--out", str(tmp_path / "x.pt")]) == 2
+    assert f"no snapshot at or after {last + 1:,} agent-steps" in capsys.readouterr().err
+    assert main(["average", str(good), str(good), "--from-steps", "0",
+                 "--out", str(tmp_path / "x.pt")]) == 2
+    assert "--from-steps picks a run directory's snapshots" in capsys.readouterr().err
     assert not (tmp_path / "x.pt").exists()
 
 

@@ -18,6 +18,45 @@ from collavn.errors import CheckpointError, ConfigError
 from collavn.policies.checkpoint import load_checkpoint
 from collavn.training.config import TrainConfig
 
+#: Folder of ``--snapshot-every`` copies inside a run directory.
+SNAPSHOTS = "snapshots"
+
+
+def snapshot_name(agent_steps: int) -> str:
+    """The file name of the snapshot kept at ``agent_steps`` (sorts by steps)."""
+    return f"checkpoint_{agent_steps:09d}.pt"
+
+
+def run_snapshots(run_dir: str | Path, from_steps: int | None = None) -> list[Path]:
+    """A run directory's ``--snapshot-every`` snapshots from ``from_steps`` agent-steps on.
+
+    ``from_steps=None`` takes the run's second half: the snapshots kept at no fewer
+    agent-steps than half the last one's (the usual set to average; with a snapshot
+    every sixth of the run, the last four). Returned in order of agent-steps.
+
+    Raises:
+        CheckpointError: no ``snapshots`` folder in ``run_dir``, or no snapshot at or
+            after ``from_steps``.
+    """
+    folder = Path(run_dir) / SNAPSHOTS
+    if not folder.is_dir():
+        raise CheckpointError(f"{run_dir} holds no {SNAPSHOTS}/ folder: train it with "
+                              f"--snapshot-every N, or give the checkpoint files")
+    kept: list[tuple[int, Path]] = []
+    for path in folder.glob("checkpoint_*.pt"):
+        steps = path.stem.removeprefix("checkpoint_")
+        if steps.isdigit():
+            kept.append((int(steps), path))
+    if not kept:
+        raise CheckpointError(f"{folder} holds no snapshots (checkpoint_<agent-steps>.pt)")
+    kept.sort()
+    start = kept[-1][0] // 2 if from_steps is None else from_steps
+    chosen = [path for steps, path in kept if steps >= start]
+    if not chosen:
+        raise CheckpointError(f"{folder} holds no snapshot at or after {start:,} agent-steps "
+                              f"(the last is at {kept[-1][0]:,})")
+    return chosen
+
 
 def saved_config(payload: dict[str, Any], path: str | Path) -> TrainConfig:
     """The :class:`TrainConfig` stored in a checkpoint."""

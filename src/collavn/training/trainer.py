@@ -58,7 +58,7 @@ from collavn.scenes import Scene, load_scene
 from collavn.scenes.splits import scene_specs
 from collavn.threads import apply_threads
 from collavn.training import distributed
-from collavn.training.checkpoint import check_config, differences
+from collavn.training.checkpoint import SNAPSHOTS, check_config, differences, snapshot_name
 from collavn.training.config import TrainConfig
 from collavn.training.imitation import (
     Expert,
@@ -72,8 +72,6 @@ from collavn.training.ppo import comm_parameters, ppo_update
 from collavn.training.rollout import Rollout, compute_gae
 
 CHECKPOINT = "checkpoint.pt"
-#: Folder of ``--snapshot-every`` copies inside a run directory.
-SNAPSHOTS = "snapshots"
 
 
 @dataclass
@@ -555,7 +553,7 @@ def save_checkpoints(out: Path, run: Run, mark: int) -> tuple[Path, int]:
     payload = checkpoint_payload(run)
     path = save_checkpoint(out / CHECKPOINT, payload)
     if mark and run.agent_steps >= mark:
-        save_checkpoint(out / SNAPSHOTS / f"checkpoint_{run.agent_steps:09d}.pt", payload)
+        save_checkpoint(out / SNAPSHOTS / snapshot_name(run.agent_steps), payload)
         mark = next_snapshot(run)
     return path, mark
 
