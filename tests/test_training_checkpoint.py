@@ -119,7 +119,8 @@ def test_average_of_snapshots_is_the_mean_of_their_weights(resumed_and_straight,
     from collavn.cli import main
     from collavn.training.checkpoint import average_checkpoints
 
-    _, root, *_ = resumed_and_straight
+    cfg, root, *_ = resumed_and_straight
+    per_update = cfg.run.snapshot_every
     paths = sorted((root / "straight" / SNAPSHOTS).iterdir())
     assert main(["average", *map(str, paths), "--out", str(tmp_path / "avg.pt")]) == 0
     assert "averaged 2 checkpoints" in capsys.readouterr().out
@@ -139,6 +140,10 @@ def test_average_of_snapshots_is_the_mean_of_their_weights(resumed_and_straight,
     policy, _ = load_policy(tmp_path / "avg.pt")  # an evaluation policy with those weights
     loaded = policy.model.state_dict()
     assert all(torch.equal(loaded[k], v) for k, v in avg["model"].items())
+    # a policy to evaluate or --init-from, not a run's state to resume
+    with pytest.raises(CheckpointError, match=r"average of 2 checkpoints.*--init-from"):
+        train(cfg.with_run(out=str(tmp_path / "again"), total_steps=8 * per_update,
+                           resume_from=str(tmp_path / "avg.pt")))
     # the same inputs give the same weights, in any order
     again = average_checkpoints(paths[::-1])["model"]
     assert all(torch.equal(again[k], avg["model"][k]) for k in again)
@@ -147,7 +152,6 @@ def test_average_of_snapshots_is_the_mean_of_their_weights(resumed_and_straight,
     assert "averaged 2 checkpoints" in capsys.readouterr().out
     by_dir = load_checkpoint(tmp_path / "run.pt")["model"]
     assert all(torch.equal(by_dir[k], avg["model"][k]) for k in by_dir)
-    per_update = load_checkpoint(paths[0])["agent_steps"] // 2
     assert run_snapshots(root / "straight", from_steps=3 * per_update) == paths[1:]
     assert run_snapshots(root / "straight", from_steps=0) == paths
 

@@ -561,6 +561,10 @@ def save_checkpoints(out: Path, run: Run, mark: int) -> tuple[Path, int]:
 def restore(run: Run, path: Path) -> None:
     """Continue from the checkpoint at ``path`` (same config required)."""
     payload = load_checkpoint(path, map_location=run.device)
+    if "averaged_from" in payload:  # its weights are no state the optimizer ever saw
+        raise CheckpointError(f"{path} is an average of {len(payload['averaged_from'])} "
+                              f"checkpoints (collavn average), not a run's state: "
+                              f"fine-tune it with --init-from {path} instead of resuming")
     check_config(payload, run.cfg, path)
     run.model.load_state_dict(payload["model"])
     run.optimizer.load_state_dict(payload["optimizer"])
