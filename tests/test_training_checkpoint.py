@@ -187,6 +187,51 @@ def test_average_refuses_one_file_and_another_configuration(resumed_and_straight
     assert not (tmp_path / "x.pt").exists()
 
 
+def test_pick_keeps_the_snapshot_best_on_train_episodes(resumed_and_straight, tmp_path,
+                                                       capsys):
+    from collavn.cli import main
+    from collavn.evaluation.benchmark import EvalConfig, load_dataset, run_evaluation
+    from collavn.evaluation.compare import sr_interval
+
+    _, root, *_ = resumed_and_straight
+    data = tmp_path / "train_eps"
+    assert main(["dataset", "generate", "--task", "commongoal", "--agents", "2", "--split",
+                 "train", "--episodes", "6", "--scenes", "procedural:0", "--out", str(data),
+                 "--quiet"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "picked.pt"
+    assert main(["pick", str(root / "straight"), "--dataset", str(data), "--out", str(out),
+                 "--num-envs", "3", "--torch-threads", "1", "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    picked = load_checkpoint(out)
+    paths = run_snapshots(root / "straight")
+    assert len(paths) == 2 and [r["path"] for r in picked["picked_from"]] == list(map(str, paths))
+    # each score is the snapshot's own mean-action SR on the easy + medium train episodes
+    for path, row in zip(paths, picked["picked_from"], strict=True):
+        cfg = EvalConfig(policy=str(path), dataset=data, split="train", num_envs=3,
+                         keep_trajectories=0, progress=False, torch_threads=1)
+        records = [r for d in ("easy", "medium") for r in run_evaluation(
+            replace(cfg, difficulty=d), load_dataset(cfg)).records]
+        assert row["sr"] == sr_interval(records)[0], path.name
+        assert f"{path.name}: SR {row['sr']:.3f}" in printed
+    srs = [row["sr"] for row in picked["picked_from"]]
+    best = 1 if srs[1] >= srs[0] else 0  # ties: the later
+    assert f"picked {paths[best].name}" in printed
+    source = _params(paths[best])
+    assert all(torch.equal(v, source[k]) for k, v in picked["model"].items())
+    assert picked["agent_steps"] == load_checkpoint(paths[best])["agent_steps"]
+    # val episodes are refused: picking on them would choose on the reported episodes
+    val = tmp_path / "val_eps"
+    assert main(["dataset", "generate", "--task", "commongoal", "--agents", "2", "--split",
+                 "val", "--episodes", "1", "--scenes", "procedural:0", "--out", str(val),
+                 "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["pick", str(root / "straight"), "--dataset", str(val), "--out",
+                 str(tmp_path / "no.pt")]) == 2
+    assert "holds no train-split episodes" in capsys.readouterr().err
+    assert not (tmp_path / "no.pt").exists()
+
+
 def test_run_directory_holds_config_and_tensorboard(resumed_and_straight):
     cfg, root, *_ = resumed_and_straight
     saved = json.loads((root / "straight" / "config.json").read_text())

@@ -38,6 +38,8 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str]] = {
                  "Train ours / no-mem / no-com (PPO) or il; checkpoints, TensorBoard, resume."),
     ("average",): ("collavn.cli.average", "Average",
                    "Average the weights of a run's checkpoints (snapshots) into one policy."),
+    ("pick",): ("collavn.cli.pick", "Pick",
+                "Keep the snapshot of a run that scores best on training-scene episodes."),
     ("experiment",): ("collavn.cli.experiment", "Experiment",
                       "The paper's table end to end for a budget: train, evaluate, report."),
 }
