@@ -154,6 +154,8 @@ def test_average_of_snapshots_is_the_mean_of_their_weights(resumed_and_straight,
     assert all(torch.equal(by_dir[k], avg["model"][k]) for k in by_dir)
     assert run_snapshots(root / "straight", from_steps=3 * per_update) == paths[1:]
     assert run_snapshots(root / "straight", from_steps=0) == paths
+    with pytest.raises(ConfigError, match="--from-steps must be ≥ 0, got -1"):
+        run_snapshots(root / "straight", from_steps=-1)
 
 
 def test_average_refuses_one_file_and_another_configuration(resumed_and_straight, tmp_path,

@@ -36,8 +36,6 @@ class Average:
         if self.from_steps is not None and not any(p.is_dir() for p in self.checkpoints):
             raise ConfigError("--from-steps picks a run directory's snapshots; give a run "
                               "directory (or leave it out)")
-        if self.from_steps is not None and self.from_steps < 0:
-            raise ConfigError(f"--from-steps must be ≥ 0, got {self.from_steps}")
         return [q for p in self.checkpoints
                 for q in (run_snapshots(p, self.from_steps) if p.is_dir() else [p])]
 

@@ -35,9 +35,12 @@ def run_snapshots(run_dir: str | Path, from_steps: int | None = None) -> list[Pa
     every sixth of the run, the last four). Returned in order of agent-steps.
 
     Raises:
+        ConfigError: a negative ``from_steps``.
         CheckpointError: no ``snapshots`` folder in ``run_dir``, or no snapshot at or
             after ``from_steps``.
     """
+    if from_steps is not None and from_steps < 0:
+        raise ConfigError(f"--from-steps must be ≥ 0, got {from_steps}")
     folder = Path(run_dir) / SNAPSHOTS
     if not folder.is_dir():
         raise CheckpointError(f"{run_dir} holds no {SNAPSHOTS}/ folder: train it with "
