@@ -9,8 +9,9 @@ from typing import Annotated
 import tyro
 
 from collavn.datasets.episode import Difficulty
+from collavn.datasets.storage import Dataset
 from collavn.errors import CollavnError
-from collavn.evaluation.benchmark import EvalConfig, load_dataset, run_evaluation
+from collavn.evaluation.benchmark import EvalConfig, run_evaluation
 from collavn.evaluation.compare import sr_interval
 from collavn.policies.checkpoint import load_checkpoint, save_checkpoint
 from collavn.training.checkpoint import run_snapshots
@@ -55,13 +56,12 @@ class Pick:
                           num_envs=self.num_envs, seed=self.seed,
                           torch_threads=self.torch_threads, keep_trajectories=0,
                           progress=self.progress)
-        try:
-            dataset = load_dataset(base)
-        except CollavnError as e:
+        dataset = Dataset.load(self.dataset, split="train")  # a broken file: its own error
+        if len(dataset) == 0:
             raise CollavnError(
                 f"{self.dataset} holds no train-split episodes: pick on episodes of the "
                 f"training scenes (collavn dataset generate --split train --scenes ...), "
-                f"not on the val or test episodes a policy is reported on") from e
+                f"not on the val or test episodes a policy is reported on")
         scores = []
         for path in paths:
             records = [r for d in self.difficulties

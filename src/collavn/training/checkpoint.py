@@ -43,8 +43,8 @@ def run_snapshots(run_dir: str | Path, from_steps: int | None = None) -> list[Pa
         raise ConfigError(f"--from-steps must be ≥ 0, got {from_steps}")
     folder = Path(run_dir) / SNAPSHOTS
     if not folder.is_dir():
-        raise CheckpointError(f"{run_dir} holds no {SNAPSHOTS}/ folder: train it with "
-                              f"--snapshot-every N, or give the checkpoint files")
+        raise CheckpointError(f"{run_dir} holds no {SNAPSHOTS}/ folder (a run trained with "
+                              f"--snapshot-every N keeps its snapshots there)")
     kept: list[tuple[int, Path]] = []
     for path in folder.glob("checkpoint_*.pt"):
         steps = path.stem.removeprefix("checkpoint_")
