@@ -70,10 +70,9 @@ class Pick:
             if not records:
                 raise CollavnError(f"no {'/'.join(self.difficulties)} train-split episodes "
                                    f"in {self.dataset}")
-            steps = int(load_checkpoint(path)["agent_steps"])
-            scores.append((steps, *sr_interval(records)))
-            print(f"{path.name}: SR {scores[-1][1]:.3f} "
-                  f"[{scores[-1][2]:.3f}, {scores[-1][3]:.3f}] ({scores[-1][4]} episodes)")
+            sr, low, high, episodes = sr_interval(records)
+            scores.append((int(load_checkpoint(path)["agent_steps"]), sr, low, high, episodes))
+            print(f"{path.name}: SR {sr:.3f} [{low:.3f}, {high:.3f}] ({episodes} episodes)")
         best = max(range(len(paths)), key=lambda i: (scores[i][1], i))
         payload = {k: v for k, v in load_checkpoint(paths[best]).items() if k != "format"}
         payload["picked_from"] = [{"path": str(p), "agent_steps": s[0], "sr": s[1]}
