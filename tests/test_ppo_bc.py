@@ -139,3 +139,64 @@ def test_start_std_sets_sigma_after_init_from_and_zero_keeps_the_checkpoints(tmp
     assert not torch.allclose(kept.model.towers[0].log_std, run.model.towers[0].log_std)
     with pytest.raises(ConfigError, match=r"--ppo\.start-std"):
         PPOConfig(start_std=-0.1)
+
+
+def _annealed(tmp_path, method: str = "no-com", total: int = 64):
+    cfg = tiny_config(method=method, out=str(tmp_path / "anneal")).with_run(total_steps=total)
+    return dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, start_std=0.4,
+                                                             end_std=0.05))
+
+
+def test_end_std_schedule_is_log_linear_from_start_to_end(tmp_path):
+    from collavn.training.trainer import annealed_std
+
+    cfg = _annealed(tmp_path, total=1000)
+    assert annealed_std(cfg, 0) == pytest.approx(0.4)
+    assert annealed_std(cfg, 500) == pytest.approx(np.sqrt(0.4 * 0.05))
+    assert annealed_std(cfg, 1000) == pytest.approx(0.05)
+    assert annealed_std(cfg, 5000) == pytest.approx(0.05)  # past the end: stays there
+    assert annealed_std(cfg, 250) > annealed_std(cfg, 750)
+
+
+def test_end_std_sets_sigma_before_each_rollout_and_ppo_does_not_train_it(tmp_path):
+    from collavn.training.trainer import anneal_std, annealed_std
+
+    cfg = _annealed(tmp_path)
+    torch.set_num_threads(1)
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    log_std = run.model.towers[0].log_std
+    assert not log_std.requires_grad
+    assert all(p is not log_std for g in run.optimizer.param_groups for p in g["params"])
+    sync_point(run)
+    seen = []
+    for _ in range(3):
+        anneal_std(run)
+        expected = np.log(annealed_std(cfg, run.agent_steps))
+        assert torch.allclose(log_std, torch.full((2,), expected, dtype=log_std.dtype))
+        rollout, _ = collect_rollout(run)
+        losses = learn(run, rollout)
+        assert losses["opt/action_std"] == pytest.approx(float(np.exp(expected)), rel=1e-5)
+        # learning moved the other weights, not σ
+        assert torch.allclose(log_std, torch.full((2,), expected, dtype=log_std.dtype))
+        seen.append(float(np.exp(expected)))
+        run.agent_steps += run.steps_per_update
+    assert seen[0] == pytest.approx(0.4) and seen[0] > seen[1] > seen[2]
+
+
+def test_end_std_run_ends_on_the_schedule_and_bad_settings_are_refused(tmp_path):
+    from collavn.training.trainer import annealed_std, restore, train
+
+    cfg = _annealed(tmp_path, total=32)
+    result = train(cfg)
+    run = build_run(cfg.with_run(out=str(tmp_path / "other")), DistInfo(), torch.device("cpu"))
+    restore(run, tmp_path / "anneal" / "checkpoint.pt")
+    last_rollout = result.agent_steps - run.steps_per_update
+    assert torch.allclose(run.model.towers[0].log_std.exp(),
+                          torch.full((2,), annealed_std(cfg, last_rollout)))
+    with pytest.raises(ConfigError, match=r"--ppo\.end-std.*--ppo\.start-std"):
+        PPOConfig(end_std=0.05)
+    with pytest.raises(ConfigError, match=r"--ppo\.end-std"):
+        PPOConfig(start_std=0.1, end_std=float("nan"))
+    with pytest.raises(ConfigError, match=r"--ppo\.end-std.*'il'"):
+        dataclasses.replace(tiny_config(method="il"), ppo=PPOConfig(start_std=0.2,
+                                                                    end_std=0.05))

@@ -129,6 +129,7 @@ LATER_FIELDS: dict[str, Any] = {
     "ppo.message_floor": 0.0,
     "ppo.message_floor_coef": 1.0,
     "run.snapshot_every": 0,
+    "ppo.end_std": 0.0,
 }
 
 

@@ -159,12 +159,25 @@ class PPOConfig:
     scored by its mean action; from an ``il`` checkpoint (σ ≈ 0.35, on actions in
     [−1, 1]) the two drive differently, and a small σ keeps PPO's samples near the mean
     it will be scored on."""
+    end_std: float = 0.0
+    """Anneal σ instead of learning it (0 = learn it, as before): σ goes from
+    ``--ppo.start-std`` at agent-step 0 to this at ``--total-steps``, geometrically (log σ
+    linear in the agent-steps), set before every rollout; the log-std is then not a
+    trained weight. PPO improves the smoothed return of the policy it samples, the
+    mean action is scored on the unsmoothed one; a σ that shrinks through the run lets
+    the early updates explore and the late ones improve a policy that drives almost as
+    its mean does. Needs ``--ppo.start-std``; a resumed run follows the same schedule
+    (it depends on the agent-steps only)."""
 
     def __post_init__(self) -> None:
         check_number("--ppo.target-kl", self.target_kl, allow_minimum=True)
         check_number("--ppo.bc-coef", self.bc_coef, allow_minimum=True)
         check_number("--ppo.bc-decay", self.bc_decay)
         check_number("--ppo.start-std", self.start_std, allow_minimum=True)
+        check_number("--ppo.end-std", self.end_std, allow_minimum=True)
+        if self.end_std > 0 and self.start_std <= 0:
+            raise ConfigError(f"--ppo.end-std {self.end_std} anneals σ from --ppo.start-std: "
+                              f"give --ppo.start-std too")
         if self.bc_target not in ("expert", "init"):
             raise ConfigError(f"--ppo.bc-target must be expert or init, got {self.bc_target!r}")
         if self.bc_steps not in ("all", "sighted"):
@@ -408,6 +421,9 @@ class TrainConfig:
                                            or self.method_spec.comm == "none"):
             raise ConfigError(f"--ppo.message-floor keeps PPO's messages flowing; method "
                               f"{self.method!r} sends none (use ours or no-mem)")
+        if self.ppo.end_std > 0 and self.method_spec.imitation:
+            raise ConfigError("--ppo.end-std anneals PPO's σ; method 'il' learns its σ by "
+                              "likelihood (leave --ppo.end-std at 0)")
         if self.ppo_clones and self.ppo.bc_target == "init" and not self.run.init_from:
             raise ConfigError("--ppo.bc-target init imitates the --init-from policy: give "
                               "--init-from CHECKPOINT (or use --ppo.bc-target expert)")

@@ -190,6 +190,8 @@ def build_run(cfg: TrainConfig, info: distributed.DistInfo, device: torch.device
             for tower in model.towers:
                 assert isinstance(tower, AgentTower)
                 tower.log_std.fill_(math.log(cfg.ppo.start_std))
+                if cfg.ppo.end_std > 0:  # set by anneal_std, not trained
+                    tower.log_std.requires_grad_(False)
     if encoder is not None:
         install_encoder(model, encoder, cfg.env.camera_height)
         if anchor is not None:
@@ -479,7 +481,31 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
                        run.generator, sync, critic_only=warmup, bc_weight=bc_weight)
     run.maps.train_owed()  # between updates: the next rollout is scored as collected
     return {f"loss/{k}": v for k, v in stats.__dict__.items()} | {
-        "loss/critic_warmup": float(warmup)}
+        "loss/critic_warmup": float(warmup), "opt/action_std": action_std(run.model)}
+
+
+def action_std(model: ActorCritic) -> float:
+    """The policy's σ, averaged over agents' towers and action dimensions."""
+    return float(torch.stack([t.log_std.detach().exp().mean() for t in model.towers
+                              if isinstance(t, AgentTower)]).mean())
+
+
+def annealed_std(cfg: TrainConfig, agent_steps: int) -> float:
+    """σ at ``agent_steps`` under ``--ppo.end-std``: log σ linear from start to end."""
+    frac = min(max(agent_steps / cfg.run.total_steps, 0.0), 1.0)
+    return math.exp((1.0 - frac) * math.log(cfg.ppo.start_std)
+                    + frac * math.log(cfg.ppo.end_std))
+
+
+def anneal_std(run: Run) -> None:
+    """Set every tower's σ from the schedule before a rollout (``--ppo.end-std`` > 0)."""
+    cfg = run.cfg
+    if cfg.ppo.end_std <= 0 or cfg.method_spec.imitation:
+        return
+    with torch.no_grad():
+        for tower in run.model.towers:
+            assert isinstance(tower, AgentTower)
+            tower.log_std.fill_(math.log(annealed_std(cfg, run.agent_steps)))
 
 
 def anchor_targets(run: Run, rollout: Rollout) -> None:
@@ -648,6 +674,7 @@ def train(cfg: TrainConfig) -> TrainResult:
                     sync_point(run)
                     first = False
                 tick = time.perf_counter()
+                anneal_std(run)
                 rollout, collected = collect_rollout(run)
                 losses = learn(run, rollout)
                 run.iteration += 1
