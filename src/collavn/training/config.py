@@ -167,7 +167,8 @@ class PPOConfig:
     mean action is scored on the unsmoothed one; a σ that shrinks through the run lets
     the early updates explore and the late ones improve a policy that drives almost as
     its mean does. Needs ``--ppo.start-std``; a resumed run follows the same schedule
-    (it depends on the agent-steps only). Measured (README, 2026-12-07): 0.15 → 0.05
+    (it depends on the agent-steps and ``--total-steps`` only: extending a run with a
+    larger ``--total-steps`` stretches it). Measured (README, 2026-12-07): 0.15 → 0.05
     over 368,640 agent-steps collapsed an ``ours`` run from ``il`` (mean-action SR 0.39 /
     0.21 easy / medium against 0.58 / 0.36 for the same seed with σ learned): Adam moves
     the means by about the learning rate per step whatever σ is, so each update's KL
