@@ -502,10 +502,11 @@ def anneal_std(run: Run) -> None:
     cfg = run.cfg
     if cfg.ppo.end_std <= 0 or cfg.method_spec.imitation:
         return
+    log_std = math.log(annealed_std(cfg, run.agent_steps))
     with torch.no_grad():
         for tower in run.model.towers:
             assert isinstance(tower, AgentTower)
-            tower.log_std.fill_(math.log(annealed_std(cfg, run.agent_steps)))
+            tower.log_std.fill_(log_std)
 
 
 def anchor_targets(run: Run, rollout: Rollout) -> None:
