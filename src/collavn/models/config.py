@@ -211,7 +211,7 @@ class ModelConfig:
             (how far the goal view's surfaces are from where the goal camera stood, and
             from here), which 32-pixel-high RGB answers poorly; the depth sensor is
             there anyway (the map is supervised by it). Not in the paper; the goal image
-            stays RGB, as the task gives it. Measured (README, 2026-12-06): held-out
+            stays RGB, as the task gives it. Measured (docs/learning-log.md, 2026-12-06): held-out
             path direction 1–2 m from the goal 0.445 → 0.485, but ``il`` on it no
             better (−0.038 and −0.010 easy SR over two seeds), so it is off in ``cpu``.
         goal_belief: Sectors of an auxiliary head on the actor's GRU state that says
@@ -222,7 +222,7 @@ class ModelConfig:
             nor trains it. It asks the recurrent state to carry the goal's position
             from step to step on the policy's own trajectories, where the frame
             perception alone is right least often (1–2 m from the goal). 0 = no head,
-            1 is refused (not in the paper). Measured (README,
+            1 is refused (not in the paper). Measured (docs/learning-log.md,
             2026-12-06): on ``il``'s own val trajectories the head's bearing is right
             (±1 of 16 sectors) on 0.39 of steps 1–2 m from the goal where the readout is
             on 0.27, and agents end nearer their goals, but ``il``'s SR did not rise

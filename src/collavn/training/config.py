@@ -112,7 +112,7 @@ class PPOConfig:
     multiple of ``lr`` (1 = the same, 0 = frozen at their initial weights). At the full
     rate Adam's normalised steps move ψ's matrix coherently, every pair's score at once,
     and the gates drift shut (below η they get almost no gradient back); 0.1 kept them
-    open in our runs (README, "Why the gates close")."""
+    open in our runs (docs/learning-log.md, "Why the gates close")."""
     message_floor: float = 0.0
     """Keep messages flowing: the share p of agent-steps (those with an active teammate)
     in which a teammate's value should reach the agent (0 = off; methods that
@@ -122,8 +122,8 @@ class PPOConfig:
     temperature): when fewer than p of them hear a teammate, the ones closest to hearing
     are pushed over η. Which steps talk stays the policy's choice; only the rate is held
     up. Without it the gates drift shut during PPO, and a closed gate's straight-through
-    gradient (σ' at (s − η)/τ ≈ −9, ~10⁻⁴) cannot reopen it (README, "Why the gates
-    close")."""
+    gradient (σ' at (s − η)/τ ≈ −9, ~10⁻⁴) cannot reopen it (docs/learning-log.md, "Why
+    the gates close")."""
     message_floor_coef: float = 1.0
     """Weight of the message floor's term in PPO's loss."""
     bc_coef: float = 0.0
@@ -168,7 +168,7 @@ class PPOConfig:
     the early updates explore and the late ones improve a policy that drives almost as
     its mean does. Needs ``--ppo.start-std``; a resumed run follows the same schedule
     (it depends on the agent-steps and ``--total-steps`` only: extending a run with a
-    larger ``--total-steps`` stretches it). Measured (README, 2026-12-07): 0.15 → 0.05
+    larger ``--total-steps`` stretches it). Measured (docs/learning-log.md, 2026-12-07): 0.15 → 0.05
     over 368,640 agent-steps collapsed an ``ours`` run from ``il`` (mean-action SR 0.39 /
     0.21 easy / medium against 0.58 / 0.36 for the same seed with σ learned): Adam moves
     the means by about the learning rate per step whatever σ is, so each update's KL
