@@ -21,13 +21,13 @@ from collavn.training.checkpoint import run_snapshots
 class Pick:
     """Score a run's snapshots by the mean action on training-scene episodes; keep the best.
 
-    A PPO policy's mean action moves by as much as ±0.1 SR between snapshots 61k
-    agent-steps apart (docs/learning-log.md, 2026-12-07), so where a run stops is partly luck. This
+    A PPO policy's mean action moves by as much as ±0.1 SR between snapshots 61k agent-steps
+    apart (docs/learning-log.md, 2026-12-07), so where a run stops is partly luck. This
     evaluates each ``--snapshot-every`` snapshot of ``RUN_DIR`` (the second half by default)
-    on the episodes of ``--dataset``, which must come from the *train* split — episodes
-    of the scenes the policy trained in (``collavn dataset generate --split train
-    --scenes ...``), never the val or test episodes it will be reported on — pools SR
-    over ``--difficulties``, and writes the best snapshot (ties: the later) to ``--out``.
+    on the episodes of ``--dataset``, which must come from the *train* split — episodes of
+    the scenes the policy trained in (``collavn dataset generate --split train --scenes
+    ...``), never the val or test episodes it will be reported on — pools SR over
+    ``--difficulties``, and writes the best snapshot (ties: the later) to ``--out``.
     """
 
     run_dir: Annotated[Path, tyro.conf.Positional]

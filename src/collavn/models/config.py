@@ -211,9 +211,10 @@ class ModelConfig:
             (how far the goal view's surfaces are from where the goal camera stood, and
             from here), which 32-pixel-high RGB answers poorly; the depth sensor is
             there anyway (the map is supervised by it). Not in the paper; the goal image
-            stays RGB, as the task gives it. Measured (docs/learning-log.md, 2026-12-06): held-out
-            path direction 1–2 m from the goal 0.445 → 0.485, but ``il`` on it no
-            better (−0.038 and −0.010 easy SR over two seeds), so it is off in ``cpu``.
+            stays RGB, as the task gives it. Measured (docs/learning-log.md,
+            2026-12-06): held-out path direction 1–2 m from the goal 0.445 → 0.485, but
+            ``il`` on it no better (−0.038 and −0.010 easy SR over two seeds), so it is
+            off in ``cpu``.
         goal_belief: Sectors of an auxiliary head on the actor's GRU state that says
             where the goal is: its egocentric straight-line bearing (one of
             ``goal_belief`` sectors, the first centred straight ahead) and its log

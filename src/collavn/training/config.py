@@ -166,13 +166,13 @@ class PPOConfig:
     trained weight. PPO improves the smoothed return of the policy it samples, the
     mean action is scored on the unsmoothed one; a σ that shrinks through the run lets
     the early updates explore and the late ones improve a policy that drives almost as
-    its mean does. Needs ``--ppo.start-std``; a resumed run follows the same schedule
-    (it depends on the agent-steps and ``--total-steps`` only: extending a run with a
-    larger ``--total-steps`` stretches it). Measured (docs/learning-log.md, 2026-12-07): 0.15 → 0.05
-    over 368,640 agent-steps collapsed an ``ours`` run from ``il`` (mean-action SR 0.39 /
-    0.21 easy / medium against 0.58 / 0.36 for the same seed with σ learned): Adam moves
-    the means by about the learning rate per step whatever σ is, so each update's KL
-    grows as 1/σ² (0.010 → 0.020, past ``--ppo.target-kl``, clip fraction 0.09 → 0.17)."""
+    its mean does. Needs ``--ppo.start-std``; a resumed run follows the same schedule (it
+    depends on the agent-steps and ``--total-steps`` only: extending a run with a larger
+    ``--total-steps`` stretches it). Measured (docs/learning-log.md, 2026-12-07): 0.15 →
+    0.05 over 368,640 agent-steps collapsed an ``ours`` run from ``il`` (mean-action SR 0.39
+    / 0.21 easy / medium against 0.58 / 0.36 for the same seed with σ learned): Adam moves
+    the means by about the learning rate per step whatever σ is, so each update's KL grows
+    as 1/σ² (0.010 → 0.020, past ``--ppo.target-kl``, clip fraction 0.09 → 0.17)."""
 
     def __post_init__(self) -> None:
         check_number("--ppo.target-kl", self.target_kl, allow_minimum=True)
