@@ -10,6 +10,7 @@ from collavn.errors import CollavnError
 from collavn.evaluation.compare import (
     check_same_episodes,
     compare_pooled,
+    compare_recipes,
     compare_records,
     episode_scores,
     paired_bootstrap,
@@ -156,6 +157,49 @@ def test_pooled_value_is_the_runs_mean_and_the_interval_holds_their_spread():
     assert (one.delta, one.low, one.high) == (1.0, 1.0, 1.0)
     with pytest.raises(CollavnError, match=r"base and both\[1\] were evaluated on different"):
         compare_pooled(base, [good, bad[:-1]], "base", "both")
+
+
+def test_pooled_baseline_copies_of_one_run_equal_one_baseline():
+    a, b = episode_scores(A), episode_scores(B)
+    one = pooled_bootstrap(a, [b, a], samples=1500, rng=np.random.default_rng(3),
+                           run_rng=np.random.default_rng(4))
+    copies = pooled_bootstrap([a, a, a], [b, a], samples=1500, rng=np.random.default_rng(3),
+                              run_rng=np.random.default_rng(4),
+                              baseline_rng=np.random.default_rng(5))
+    assert copies == one  # the same draws; every baseline draw picks the same values
+    assert compare_recipes([A], [B], "a", "b", samples=300, seed=2) == \
+        compare_records(A, B, "a", "b", samples=300, seed=2)
+
+
+def test_two_recipes_pooled_value_is_the_difference_of_means_and_holds_both_spreads():
+    every = {f"e{i}": ("easy", (1, 1)) for i in range(40)}
+    none = {e: ("easy", (0, 0)) for e in every}
+    good, bad = records(every, 2.0), records(none, 2.0)
+    c = compare_recipes([bad, good], [good], "base", "method", samples=2000, seed=0)
+    d = c.groups["easy"]["SR"]
+    assert (d.a, d.b, d.delta) == (0.5, 1.0, 0.5)
+    # episodes all alike: only the baseline's run draws vary, {bad,bad} … {good,good}
+    assert (d.low, d.high) == (0.0, 1.0)
+    with pytest.raises(CollavnError, match=r"base\[0\] and base\[1\] were evaluated on"):
+        compare_recipes([bad, good[:-1]], [good], "base", "method")
+    with pytest.raises(CollavnError, match="no baseline runs"):
+        compare_recipes([], [good])
+
+
+def test_cli_compare_two_recipes(tmp_path, capsys):
+    for name, recs in (("n1", A), ("n2", A), ("o1", B), ("o2", A)):
+        write_records(tmp_path / name / "records.jsonl", recs)
+    dirs = [str(tmp_path / n) for n in ("n1", "n2", "o1", "o2")]
+    assert main(["compare", *dirs, "--pool", "--baseline-runs", "2", "--samples", "200",
+                 "--json"]) == 0
+    [out] = json.loads(capsys.readouterr().out)
+    assert (out["baseline"], out["method"]) == ("mean of 2: n1, n2", "mean of 2: o1, o2")
+    assert out["groups"]["overall"]["SR"]["delta"] == pytest.approx(5 / 24)
+    for args, message in (([*dirs, "--baseline-runs", "2"], "add --pool"),
+                          ([*dirs[:2], "--pool", "--baseline-runs", "2"], "give at least one"),
+                          ([*dirs, "--pool", "--baseline-runs", "0"], "must be ≥ 1")):
+        assert main(["compare", *args]) == 2
+        assert message in capsys.readouterr().err
 
 
 def test_cli_compare_pool(tmp_path, capsys):

@@ -11,7 +11,7 @@ import tyro
 
 from collavn.errors import CollavnError
 from collavn.evaluation.compare import (
-    compare_pooled,
+    compare_recipes,
     compare_records,
     comparisons_to_markdown,
 )
@@ -25,7 +25,8 @@ class Compare:
 
     SR, SPL and DTS differences with 95 % intervals, per difficulty and overall. Every
     evaluation after the first is compared with the first (Δ = it − first); with
-    ``--pool``, their mean is (runs of one recipe, e.g. training seeds).
+    ``--pool``, their mean is (runs of one recipe, e.g. training seeds). Two recipes over
+    seeds: ``--pool --baseline-runs K`` pools the first K as the baseline.
     """
 
     evaluations: Annotated[tuple[Path, ...], tyro.conf.Positional]
@@ -39,6 +40,11 @@ class Compare:
     """Compare the mean of the evaluations after the first (runs of one recipe: seeds)
     with the first, in one row. The interval resamples the runs as well as the
     episodes, so it holds the spread between seeds too (roughly, with few runs)."""
+    baseline_runs: int = 1
+    """With ``--pool``: the first this-many evaluations are the baseline's runs (seeds of
+    one recipe), pooled like the method's, e.g. ``compare noc_s2 noc_s4 ours_s2 ours_s4
+    --pool --baseline-runs 2`` gives mean(ours) − mean(no-com) with an interval that
+    resamples both recipes' seeds."""
     json: bool = False
     """Print JSON (a list, one object per compared evaluation) instead of Markdown."""
 
@@ -46,12 +52,20 @@ class Compare:
         """Read the records, check they pair up, bootstrap, print."""
         if len(self.evaluations) < 2:
             raise CollavnError("give at least two evaluations: BASELINE METHOD [METHOD ...]")
+        k = self.baseline_runs
+        if k < 1:
+            raise CollavnError(f"--baseline-runs must be ≥ 1, got {k}")
+        if k > 1 and not self.pool:
+            raise CollavnError(f"--baseline-runs {k} pools the baseline's runs: add --pool")
+        if len(self.evaluations) <= k:
+            raise CollavnError(f"--baseline-runs {k} takes the first {k} evaluations as the "
+                               f"baseline; give at least one more ({len(self.evaluations)} "
+                               f"given)")
         names = _names(self.evaluations)
         records = [_records(path) for path in self.evaluations]
         if self.pool:
-            comparisons = [compare_pooled(records[0], records[1:], names[0],
-                                          f"mean of {len(names) - 1}: {', '.join(names[1:])}",
-                                          self.samples, self.seed)]
+            comparisons = [compare_recipes(records[:k], records[k:], _pooled_name(names[:k]),
+                                           _pooled_name(names[k:]), self.samples, self.seed)]
         else:
             comparisons = [compare_records(records[0], other, names[0], name, self.samples,
                                            self.seed)
@@ -79,6 +93,11 @@ def _records(path: Path) -> list[AgentRecord]:
     if not records:
         raise CollavnError(f"{path} holds no records")
     return records
+
+
+def _pooled_name(names: list[str]) -> str:
+    """``name`` for one run, ``mean of R: a, b, …`` for several."""
+    return names[0] if len(names) == 1 else f"mean of {len(names)}: {', '.join(names)}"
 
 
 def _names(paths: tuple[Path, ...]) -> list[str]:

@@ -110,55 +110,79 @@ def paired_bootstrap(a: EpisodeScores, b: EpisodeScores, samples: int = 5000,
     return pooled_bootstrap(a, [b], samples, rng, None, level)
 
 
-def pooled_bootstrap(a: EpisodeScores, runs: Sequence[EpisodeScores], samples: int = 5000,
+def pooled_bootstrap(a: EpisodeScores | Sequence[EpisodeScores],
+                     runs: Sequence[EpisodeScores], samples: int = 5000,
                      rng: np.random.Generator | None = None,
                      run_rng: np.random.Generator | None = None,
-                     level: float = 0.95) -> dict[str, Difference]:
+                     level: float = 0.95,
+                     baseline_rng: np.random.Generator | None = None) -> dict[str, Difference]:
     """Difference between the mean of ``R`` runs of a method and a baseline, with its interval.
 
     The method's value is the mean of its runs' values (e.g. training seeds of one
     recipe). Each resample draws the ``K`` episodes with replacement (the same for the
     baseline and every run) and, when ``R > 1``, ``R`` of the runs with replacement, so
     the interval holds the spread between runs as well as between episodes; with a
-    handful of runs it is itself rough. One run is :func:`paired_bootstrap`.
+    handful of runs it is itself rough. One run is :func:`paired_bootstrap`. The
+    baseline may be several runs too (two recipes over seeds): its value is their mean,
+    and its runs are drawn the same way, independently of the method's.
 
     Args:
-        a: Baseline scores.
+        a: Baseline scores, or the baseline's runs (each on the same episodes).
         runs: The method's runs, each on the baseline's episodes in the same order.
         samples: Bootstrap resamples.
         rng: Draws the episode indices (the same draws as :func:`paired_bootstrap`).
-        run_rng: Draws the run indices (unused for one run).
+        run_rng: Draws the method's run indices (unused for one run).
         level: Coverage of the interval.
+        baseline_rng: Draws the baseline's run indices (unused for one baseline run, so
+            a single baseline gives the same numbers as without this argument).
     """
+    bases = [a] if isinstance(a, EpisodeScores) else list(a)
     if not runs:
         raise CollavnError("no runs to compare")
-    for b in runs:
-        if not np.array_equal(a.episode_ids, b.episode_ids):
+    if not bases:
+        raise CollavnError("no baseline runs to compare against")
+    first = bases[0]
+    for b in (*bases[1:], *runs):
+        if not np.array_equal(first.episode_ids, b.episode_ids):
             raise CollavnError("paired bootstrap needs the same episodes in the same order")
-    if len(a.episode_ids) == 0:
+    if len(first.episode_ids) == 0:
         raise CollavnError("no episodes to compare")
     rng = rng or np.random.default_rng(0)
     run_rng = run_rng or np.random.default_rng(1)
-    k, r = len(a.episode_ids), len(runs)
-    stacked = {m: np.stack([b.sums[m] for b in runs]) for m in a.sums}  # (R, K)
-    deltas: dict[str, list[np.ndarray]] = {m: [] for m in a.sums}
+    baseline_rng = baseline_rng or np.random.default_rng(2)
+    k = len(first.episode_ids)
+    stacked = {m: np.stack([b.sums[m] for b in runs]) for m in first.sums}  # (R, K)
+    stacked_a = {m: np.stack([b.sums[m] for b in bases]) for m in first.sums}  # (Ra, K)
+    deltas: dict[str, list[np.ndarray]] = {m: [] for m in first.sums}
     for start in range(0, samples, _CHUNK):
         n = min(_CHUNK, samples - start)
         idx = rng.integers(0, k, size=(n, k))
-        pick = run_rng.integers(0, r, size=(n, r)) if r > 1 else np.zeros((n, 1), int)
-        agents = a.agents[idx].sum(axis=1)
-        for m in a.sums:
-            totals = stacked[m][:, idx].sum(axis=-1).T  # (n, R): each run's resampled sum
-            method = np.take_along_axis(totals, pick, axis=1).mean(axis=1)
-            deltas[m].append((method - a.sums[m][idx].sum(axis=1)) / agents)
+        pick = _draw_runs(run_rng, len(runs), n)
+        pick_a = _draw_runs(baseline_rng, len(bases), n)
+        agents = first.agents[idx].sum(axis=1)
+        for m in first.sums:
+            method = _resampled_mean(stacked[m], idx, pick)
+            baseline = _resampled_mean(stacked_a[m], idx, pick_a)
+            deltas[m].append((method - baseline) / agents)
     tail = 100 * (1 - level) / 2
     out = {}
-    for m in a.sums:
-        va = a.sums[m].sum() / a.agents.sum()
+    for m in first.sums:
+        va = float(np.mean([b.sums[m].sum() / b.agents.sum() for b in bases]))
         vb = float(np.mean([b.sums[m].sum() / b.agents.sum() for b in runs]))
         low, high = np.percentile(np.concatenate(deltas[m]), [tail, 100 - tail])
-        out[m] = Difference(float(va), vb, float(vb - va), float(low), float(high))
+        out[m] = Difference(va, vb, vb - va, float(low), float(high))
     return out
+
+
+def _draw_runs(rng: np.random.Generator, r: int, n: int) -> np.ndarray:
+    """``(n, r)`` run indices drawn with replacement; one run draws nothing."""
+    return rng.integers(0, r, size=(n, r)) if r > 1 else np.zeros((n, 1), int)
+
+
+def _resampled_mean(sums: np.ndarray, idx: np.ndarray, pick: np.ndarray) -> np.ndarray:
+    """Mean over the drawn runs ``pick (n, R')`` of each run's sum over episodes ``idx``."""
+    totals = sums[:, idx].sum(axis=-1).T  # (n, R): each run's resampled sum
+    return np.take_along_axis(totals, pick, axis=1).mean(axis=1)
 
 
 def check_same_episodes(a: Sequence[AgentRecord], b: Sequence[AgentRecord], name_a: str = "A",
@@ -249,23 +273,43 @@ def compare_pooled(a: Sequence[AgentRecord], runs: Sequence[Sequence[AgentRecord
     :func:`pooled_bootstrap`; the runs are drawn by ``default_rng([seed, group index,
     1])``. Every run must cover ``a``'s episodes.
     """
+    return compare_recipes([a], runs, name_a, name_b, samples, seed, metrics)
+
+
+def compare_recipes(baselines: Sequence[Sequence[AgentRecord]],
+                    runs: Sequence[Sequence[AgentRecord]], name_a: str = "A",
+                    name_b: str = "B", samples: int = 5000, seed: int = 0,
+                    metrics: Sequence[str] = COMPARED) -> Comparison:
+    """The mean of a method's runs against the mean of a baseline's runs (seeds of two recipes).
+
+    As :func:`compare_pooled` (which is this with one baseline run); the baseline's runs
+    are drawn by ``default_rng([seed, group index, 2])``, independently of the method's.
+    Every run of either must cover the first baseline run's episodes.
+    """
     if samples < 1:
         raise CollavnError(f"samples must be ≥ 1, got {samples}")
+    if not baselines:
+        raise CollavnError("no baseline runs to compare against")
     if not runs:
         raise CollavnError("no runs to compare")
+    a = baselines[0]
+    first_a = name_a if len(baselines) == 1 else f"{name_a}[0]"
+    for i, other in enumerate(baselines[1:], start=1):
+        check_same_episodes(a, other, first_a, f"{name_a}[{i}]")
     for i, run in enumerate(runs):
-        check_same_episodes(a, run, name_a, name_b if len(runs) == 1 else f"{name_b}[{i}]")
-    scores_a = episode_scores(a, metrics)
+        check_same_episodes(a, run, first_a, name_b if len(runs) == 1 else f"{name_b}[{i}]")
+    scores_a = [episode_scores(base, metrics) for base in baselines]
     scores_runs = [episode_scores(run, metrics) for run in runs]
     groups, episodes = {}, {}
     for g, group in enumerate((*DIFFICULTIES, "overall")):
-        mask = (np.ones(len(scores_a.episode_ids), bool) if group == "overall"
-                else scores_a.difficulty == group)
+        mask = (np.ones(len(scores_a[0].episode_ids), bool) if group == "overall"
+                else scores_a[0].difficulty == group)
         if not mask.any():
             continue
         groups[group] = pooled_bootstrap(
-            scores_a.select(mask), [sc.select(mask) for sc in scores_runs], samples,
-            np.random.default_rng([seed, g]), np.random.default_rng([seed, g, 1]))
+            [sc.select(mask) for sc in scores_a], [sc.select(mask) for sc in scores_runs],
+            samples, np.random.default_rng([seed, g]), np.random.default_rng([seed, g, 1]),
+            baseline_rng=np.random.default_rng([seed, g, 2]))
         episodes[group] = int(mask.sum())
     return Comparison(name_a, name_b, groups, episodes, samples, seed)
 
