@@ -31,7 +31,7 @@ class Compare:
 
     evaluations: Annotated[tuple[Path, ...], tyro.conf.Positional]
     """Evaluation output directories (holding ``records.jsonl``) or records files;
-    the first is the baseline."""
+    the first is the baseline (the first K with ``--baseline-runs K``)."""
     samples: int = 5000
     """Bootstrap resamples of the episodes."""
     seed: int = 0
@@ -44,7 +44,8 @@ class Compare:
     """With ``--pool``: the first this-many evaluations are the baseline's runs (seeds of
     one recipe), pooled like the method's, e.g. ``compare noc_s2 noc_s4 ours_s2 ours_s4
     --pool --baseline-runs 2`` gives mean(ours) − mean(no-com) with an interval that
-    resamples both recipes' seeds."""
+    resamples both recipes' seeds, each independently (for runs paired by seed, e.g. one
+    checkpoint with and without ``--mute``, the interval is wider than a paired one)."""
     json: bool = False
     """Print JSON (a list, one object per compared evaluation) instead of Markdown."""
 
