@@ -182,7 +182,9 @@ def test_demo_runs_end_to_end(tmp_path, capsys):
     assert list((tmp_path / "oracle").glob("*.gif"))
 
 
-def _untrained_checkpoint(path, method: str, seed: int = 0):
+def _untrained_checkpoint(path, method: str, seed: int = 0, listen: bool = True):
+    from dataclasses import replace
+
     import torch
 
     from collavn.models.policy import ActorCritic
@@ -190,6 +192,7 @@ def _untrained_checkpoint(path, method: str, seed: int = 0):
     from training_fixtures import tiny_config
 
     cfg = tiny_config(method).with_env(panorama_width=32, panorama_height=8, goal_size=8)
+    cfg = replace(cfg, model=replace(cfg.model, comm=replace(cfg.model.comm, listen=listen)))
     torch.manual_seed(seed)
     save_checkpoint(path, {"config": cfg.to_dict(), "iteration": 0,
                            "model": ActorCritic(cfg.model).state_dict()})
@@ -223,8 +226,16 @@ def test_evaluation_reports_communication_per_method(door_scene, tmp_path, capsy
     muted = json.loads(capsys.readouterr().out)[str(tmp_path / "ours.pt")]["communication"]
     assert muted["received_rate"] == muted["bytes_per_agent_step"] == 0.0
     assert muted["when_rate"] > 0.0  # its own gate still opens
+    # the same weights trained --model.comm.no-listen: muted without --mute, and the same
+    deaf = str(_untrained_checkpoint(tmp_path / "deaf.pt", "ours", seed=15, listen=False))
+    assert main(["evaluate", "--policy", deaf, "--dataset", str(data), "--out",
+                 str(tmp_path / "deaf"), "--json", *small]) == 0
+    assert json.loads(capsys.readouterr().out)[deaf]["communication"] == muted
+    assert ((tmp_path / "deaf" / "records.jsonl").read_text()
+            == (tmp_path / "muted" / "records.jsonl").read_text())
     for policy, why in (("random", "the random policy sends none"),
-                        (str(tmp_path / "no-com.pt"), "has no communication")):
+                        (str(tmp_path / "no-com.pt"), "has no communication"),
+                        (deaf, "no-listen: its agents hear no teammate")):
         # refused before --overwrite moves an earlier result aside
         assert main(["evaluate", "--policy", policy, "--mute", "--dataset", str(data),
                      "--out", str(tmp_path / "muted"), "--overwrite", *small]) == 2

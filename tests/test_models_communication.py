@@ -288,6 +288,12 @@ def test_a_muted_model_reads_only_its_own_memory_and_sends_nothing():
     counts = communication_counts(out.message, torch.ones(2, 3, dtype=torch.bool))
     assert counts.when.all() and not counts.received.any()
     assert (out.message.bytes_sent == 0).all() and (talking.message.bytes_sent > 0).all()
+    # trained so (--model.comm.no-listen): the config's model starts deaf, same messages
+    torch.manual_seed(0)
+    deaf = ActorCritic(tiny(listen=False)).eval()
+    assert not deaf.listen
+    deaf.load_state_dict(model.state_dict())
+    assert torch.equal(run(deaf, 3, 1, e=2)[0].message.omega, out.message.omega)
 
 
 @pytest.mark.parametrize("critic_gradient", [True, False])

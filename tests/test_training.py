@@ -105,6 +105,34 @@ def test_saved_config_round_trips_exactly_and_refuses_unknown_or_missing_keys(tm
         TrainConfig.from_dict(d)
 
 
+def test_a_config_written_before_a_later_field_loads_with_that_fields_old_behaviour():
+    """``model.comm.listen`` came after checkpoints were written: absent, it is True (as
+    they ran); given, it is kept; other missing keys are still refused."""
+    cfg = preset_config("cpu", method="ours")
+    d = cfg.to_dict()
+    del d["model"]["comm"]["listen"]
+    assert TrainConfig.from_dict(d) == cfg and cfg.model.comm.listen
+    deaf = TrainConfig.from_dict(cfg.to_dict() | {"model": {
+        **cfg.to_dict()["model"], "comm": {**d["model"]["comm"], "listen": False}}})
+    assert not deaf.model.comm.listen
+    del d["model"]["comm"]["temperature"]
+    with pytest.raises(ConfigError, match=r"missing key model\.comm\.temperature"):
+        TrainConfig.from_dict(d)
+
+
+def test_no_listen_needs_a_method_with_messages():
+    from collavn.models.config import CommConfig
+
+    for method in ("no-com", "il"):
+        cfg = preset_config("cpu", method=method)
+        with pytest.raises(ConfigError, match=r"no-listen.*has none"):
+            dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, comm=CommConfig(listen=False)))
+    ours = preset_config("cpu", method="ours")
+    deaf = dataclasses.replace(ours, model=dataclasses.replace(ours.model, comm=dataclasses.replace(ours.model.comm,
+                                                                  listen=False)))
+    assert not deaf.model.comm.listen and deaf.model.comm.variant == "memory"
+
+
 def test_cpu_deviations_are_computed_and_every_one_has_a_reason():
     deviations = preset_deviations()
     missing = [path for path, (_, _, why) in deviations.items() if why is None]

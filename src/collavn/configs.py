@@ -4,7 +4,9 @@ Every configuration in collavn (``EnvConfig``, ``ModelConfig``, ``TrainConfig``,
 frozen dataclass tree. :func:`to_dict` turns one into JSON-compatible values (tuples
 become lists); :func:`from_dict` rebuilds it and refuses a dict with an unknown or a
 missing key, naming the dotted path, so a saved ``config.json`` round-trips exactly or
-not at all.
+not at all. The one exception is a field declared with :func:`added_later`: a key added
+after files were written whose default is the behaviour before it existed, so an older
+file lacking it still loads (as it ran).
 """
 
 from __future__ import annotations
@@ -21,6 +23,16 @@ from typing import Any, TypeVar
 from collavn.errors import ConfigError
 
 T = TypeVar("T")
+
+
+#: Field metadata key of :func:`added_later`.
+_ADDED_LATER = "collavn_added_later"
+
+
+def added_later(default: Any) -> Any:
+    """A dataclass field whose ``default`` is the behaviour before the field existed:
+    :func:`from_dict` fills it in when a file written earlier lacks the key."""
+    return dataclasses.field(default=default, metadata={_ADDED_LATER: True})
 
 
 def to_dict(config: Any) -> dict[str, Any]:
@@ -44,12 +56,14 @@ def from_dict(cls: type[T], data: dict[str, Any], path: str = "") -> T:
     if unknown:
         raise ConfigError(f"unknown config key {path}{unknown[0]!s} (known: "
                           f"{', '.join(sorted(fields))})")
-    missing = sorted(set(fields) - set(data))
+    missing = sorted(name for name in set(fields) - set(data)
+                     if not fields[name].metadata.get(_ADDED_LATER))
     if missing:
         raise ConfigError(f"config is missing key {path}{missing[0]} (written by another "
                           f"version of collavn?)")
     hints = typing.get_type_hints(cls)
-    values = {name: _value(hints[name], data[name], f"{path}{name}.") for name in fields}
+    values = {name: _value(hints[name], data[name], f"{path}{name}.") for name in fields
+              if name in data}
     try:
         return cls(**values)
     except ConfigError:

@@ -12,6 +12,8 @@ from typing import Annotated, Literal
 
 import tyro
 
+from collavn.configs import added_later
+
 EncoderKind = Literal["resnet18", "small"]
 CommVariant = Literal["none", "handshake", "memory"]
 
@@ -92,6 +94,13 @@ class CommConfig:
         critic_gradient: The critic's value loss trains the communication through the
             ω it reads (the default). ``False`` gives the critic ω detached: only the
             policy's loss shapes what is sent and when the gates open.
+        listen: Teammates' entries take part in the match (the method). ``False``
+            (``--model.comm.no-listen``) cuts every link between two agents, in
+            training and in evaluation: each agent keeps the whole memory machinery but
+            matches only its own entries, and nothing is sent. An ablation that trains
+            ``ours`` without messages, to tell what its own memory gives from what its
+            teammates' messages give (``collavn evaluate --mute`` cuts the links of a
+            policy trained with them).
     """
 
     variant: Annotated[CommVariant, tyro.conf.Suppress] = "memory"
@@ -104,6 +113,7 @@ class CommConfig:
     temperature: float = 0.05
     bytes_per_float: int = 4
     critic_gradient: bool = True
+    listen: bool = added_later(True)
 
     def __post_init__(self) -> None:
         if self.memory_slots < 1 or self.store_interval < 1:

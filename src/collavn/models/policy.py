@@ -383,9 +383,10 @@ class ActorCritic(nn.Module):
         copies = cfg.max_agents if cfg.per_agent_params else 1
         self.towers = nn.ModuleList([AgentTower(cfg) for _ in range(copies)])
         self.frames_frozen = False
-        self.listen = True
-        """``False`` cuts the links to teammates (an evaluation ablation of what the
-        messages add; see :func:`~collavn.models.communication.match_and_select`)."""
+        self.listen = cfg.comm.listen
+        """``False`` cuts the links to teammates (an ablation of what the messages add;
+        see :func:`~collavn.models.communication.match_and_select`): from
+        ``CommConfig.listen`` (trained so), or set by ``collavn evaluate --mute``."""
         if device is not None:
             self.to(device)
 

@@ -279,6 +279,9 @@ def refuse_silent(model_cfg: ModelConfig, path: str | Path) -> None:
     if model_cfg.comm.variant == "none":
         raise CheckpointError(f"--mute: checkpoint {path} has no communication "
                               f"(its comm variant is 'none')")
+    if not model_cfg.comm.listen:
+        raise CheckpointError(f"--mute: checkpoint {path} was trained with "
+                              f"--model.comm.no-listen: its agents hear no teammate already")
 
 
 def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
@@ -296,7 +299,7 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
     if mute:
         refuse_silent(model_cfg, path)
     model = ActorCritic(model_cfg, device=device)
-    model.listen = not mute
+    model.listen = model_cfg.comm.listen and not mute
     try:
         model.load_state_dict(payload["model"])
     except (RuntimeError, KeyError) as e:

@@ -426,6 +426,9 @@ class TrainConfig:
                                            or self.method_spec.comm == "none"):
             raise ConfigError(f"--ppo.message-floor keeps PPO's messages flowing; method "
                               f"{self.method!r} sends none (use ours or no-mem)")
+        if not self.model.comm.listen and self.method_spec.comm == "none":
+            raise ConfigError(f"--model.comm.no-listen cuts the links between teammates; "
+                              f"method {self.method!r} has none (use ours or no-mem)")
         if self.ppo.end_std > 0 and self.method_spec.imitation:
             raise ConfigError("--ppo.end-std anneals PPO's σ; method 'il' learns its σ by "
                               "likelihood (leave --ppo.end-std at 0)")
