@@ -126,10 +126,11 @@ def test_no_listen_needs_a_method_with_messages():
     for method in ("no-com", "il"):
         cfg = preset_config("cpu", method=method)
         with pytest.raises(ConfigError, match=r"no-listen.*has none"):
-            dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, comm=CommConfig(listen=False)))
+            dataclasses.replace(cfg, model=dataclasses.replace(cfg.model,
+                                                               comm=CommConfig(listen=False)))
     ours = preset_config("cpu", method="ours")
-    deaf = dataclasses.replace(ours, model=dataclasses.replace(ours.model, comm=dataclasses.replace(ours.model.comm,
-                                                                  listen=False)))
+    comm = dataclasses.replace(ours.model.comm, listen=False)
+    deaf = dataclasses.replace(ours, model=dataclasses.replace(ours.model, comm=comm))
     assert not deaf.model.comm.listen and deaf.model.comm.variant == "memory"
 
 

@@ -30,8 +30,10 @@ _ADDED_LATER = "collavn_added_later"
 
 
 def added_later(default: Any) -> Any:
-    """A dataclass field whose ``default`` is the behaviour before the field existed:
-    :func:`from_dict` fills it in when a file written earlier lacks the key."""
+    """A field added after files were written, ``default`` being the behaviour before it.
+
+    :func:`from_dict` fills it in when a file written earlier lacks the key.
+    """
     return dataclasses.field(default=default, metadata={_ADDED_LATER: True})
 
 
