@@ -132,6 +132,8 @@ def test_no_listen_needs_a_method_with_messages():
     comm = dataclasses.replace(ours.model.comm, listen=False)
     deaf = dataclasses.replace(ours, model=dataclasses.replace(ours.model, comm=comm))
     assert not deaf.model.comm.listen and deaf.model.comm.variant == "memory"
+    with pytest.raises(ConfigError, match=r"message-floor.*no-listen cuts every link"):
+        dataclasses.replace(deaf, ppo=dataclasses.replace(deaf.ppo, message_floor=0.25))
 
 
 def test_cpu_deviations_are_computed_and_every_one_has_a_reason():

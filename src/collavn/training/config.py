@@ -429,6 +429,9 @@ class TrainConfig:
         if not self.model.comm.listen and self.method_spec.comm == "none":
             raise ConfigError(f"--model.comm.no-listen cuts the links between teammates; "
                               f"method {self.method!r} has none (use ours or no-mem)")
+        if not self.model.comm.listen and self.ppo.message_floor > 0:
+            raise ConfigError("--ppo.message-floor pushes agents to hear a teammate; "
+                              "--model.comm.no-listen cuts every link (use one of them)")
         if self.ppo.end_std > 0 and self.method_spec.imitation:
             raise ConfigError("--ppo.end-std anneals PPO's σ; method 'il' learns its σ by "
                               "likelihood (leave --ppo.end-std at 0)")
