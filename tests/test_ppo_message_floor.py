@@ -161,3 +161,30 @@ def test_a_method_that_sends_nothing_refuses_the_floor(method):
     with pytest.raises(ConfigError, match=r"message-floor.*sends none"):
         dataclasses.replace(cfg, method=method,
                             ppo=dataclasses.replace(cfg.ppo, message_floor=0.3))
+
+
+def test_a_no_listen_run_is_deaf_in_collection_and_in_the_update():
+    """``--model.comm.no-listen``: nothing heard while collecting, and PPO's replay of
+    the rollout is deaf too (its log-probs are the collected ones; hearing changes them)."""
+    cfg = tiny_config(method="ours", rollout_steps=8)
+    cfg = dataclasses.replace(cfg, model=dataclasses.replace(
+        cfg.model, comm=dataclasses.replace(cfg.model.comm, listen=False)))
+    torch.set_num_threads(1)
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    sync_point(run)
+    assert not run.model.listen
+    with torch.no_grad():  # every gate wide open: a teammate would be heard if linked
+        for tower in run.model.towers:
+            tower.comm.psi_bias.fill_(6.0)
+    rollout, stats = collect_rollout(run)
+    assert stats["comm/received_rate"] == 0.0 and stats["comm/when_rate"] > 0.0
+
+    def replay():
+        with torch.no_grad():
+            return run.model.evaluate_actions(rollout.obs, rollout.initial_state,
+                                              rollout.episode_start, rollout.raw_actions,
+                                              rollout.percepts).log_prob
+
+    assert torch.allclose(replay(), rollout.log_probs, atol=1e-5)
+    run.model.listen = True
+    assert not torch.allclose(replay(), rollout.log_probs, atol=1e-3)
