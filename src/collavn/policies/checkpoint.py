@@ -298,8 +298,9 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
     model_cfg = checkpoint_model_config(payload, path)
     if mute:
         refuse_silent(model_cfg, path)
-    model = ActorCritic(model_cfg, device=device)
-    model.listen = model_cfg.comm.listen and not mute
+    model = ActorCritic(model_cfg, device=device)  # listens as trained (CommConfig.listen)
+    if mute:
+        model.listen = False
     try:
         model.load_state_dict(payload["model"])
     except (RuntimeError, KeyError) as e:
