@@ -13,6 +13,7 @@ from collavn.models.communication import (
     match_and_select,
     memory_mask,
 )
+from collavn.models.policy import action_mean
 
 torch.set_num_threads(1)
 DQ, DV = 4, 3
@@ -296,6 +297,28 @@ def test_a_muted_model_reads_only_its_own_memory_and_sends_nothing():
     assert torch.equal(run(deaf, 3, 1, e=2)[0].message.omega, out.message.omega)
 
 
+def test_a_critic_that_does_not_hear_values_as_a_muted_agent_while_the_actor_hears():
+    """``--model.comm.no-critic-hears``: the actor's ω and actions are the talking
+    model's, the critic's values are those of the same weights muted."""
+    torch.manual_seed(0)
+    model = ActorCritic(tiny()).eval()
+    constant_scores(model, 1.0)  # every gate open: teammates' values reach every agent
+    talking = run(model, 3, 3, e=2)
+    model.listen = False
+    muted = run(model, 3, 3, e=2)
+    torch.manual_seed(0)
+    blind = ActorCritic(tiny(critic_hears=False)).eval()
+    blind.load_state_dict(model.state_dict())
+    outs = run(blind, 3, 3, e=2)
+    for t, out in enumerate(outs):
+        assert torch.equal(out.message.omega, talking[t].message.omega)
+        assert torch.equal(action_mean(out.dist), action_mean(talking[t].dist))
+        torch.testing.assert_close(out.value, muted[t].value, rtol=0, atol=1e-6)
+        assert not torch.allclose(out.value, talking[t].value, atol=1e-4)
+    counts = communication_counts(outs[-1].message, torch.ones(2, 3, dtype=torch.bool))
+    assert counts.received.all()
+
+
 @pytest.mark.parametrize("critic_gradient", [True, False])
 def test_the_value_loss_reaches_the_messages_only_with_critic_gradient(critic_gradient):
     torch.manual_seed(0)
@@ -515,7 +538,8 @@ def test_a_sequence_matches_the_step_by_step_ring_buffer(slots, interval):
     state = model.initial_state(e, n)
     with torch.no_grad():
         ref, keys, values, count, steps = _reference_rounds(model, o, s, state, starts, active)
-        _, omega, after = model._communicate(o, s, state, starts, active)
+        _, omega, critic_omega, after = model._communicate(o, s, state, starts, active)
+        assert critic_omega is omega  # the critic hears what the actor hears by default
         assert torch.allclose(omega, ref, atol=1e-6) and ref.abs().sum() > 0
         assert torch.allclose(after.mem_keys, keys, atol=1e-6)
         assert torch.allclose(after.mem_values, values, atol=1e-6)
@@ -526,8 +550,8 @@ def test_a_sequence_matches_the_step_by_step_ring_buffer(slots, interval):
         # from one step (measured 3e-8 on AMD EPYC; bit-identical on other machines)
         one, state1 = [], state
         for t in range(t_len):
-            _, w, state1 = model._communicate(o[t:t + 1], s[t:t + 1], state1,
-                                              starts[t:t + 1], active[t:t + 1])
+            _, w, _, state1 = model._communicate(o[t:t + 1], s[t:t + 1], state1,
+                                                 starts[t:t + 1], active[t:t + 1])
             one.append(w[0])
     torch.testing.assert_close(torch.stack(one), omega, rtol=0, atol=1e-6)
     torch.testing.assert_close(state1.mem_values, after.mem_values, rtol=0, atol=1e-6)

@@ -136,6 +136,26 @@ def test_no_listen_needs_a_method_with_messages():
         dataclasses.replace(deaf, ppo=dataclasses.replace(deaf.ppo, message_floor=0.25))
 
 
+def test_no_critic_hears_needs_a_listening_method_with_messages():
+    from collavn.models.config import CommConfig
+
+    for method in ("no-com", "il"):
+        cfg = preset_config("cpu", method=method)
+        with pytest.raises(ConfigError, match=r"no-critic-hears.*has none"):
+            dataclasses.replace(cfg, model=dataclasses.replace(
+                cfg.model, comm=CommConfig(critic_hears=False)))
+    ours = preset_config("cpu", method="ours")
+    d = ours.to_dict()
+    del d["model"]["comm"]["critic_hears"]  # written before the field: the critic hears
+    assert TrainConfig.from_dict(d) == ours and ours.model.comm.critic_hears
+    comm = dataclasses.replace(ours.model.comm, critic_hears=False)
+    blind = dataclasses.replace(ours, model=dataclasses.replace(ours.model, comm=comm))
+    assert TrainConfig.from_dict(blind.to_dict()) == blind
+    with pytest.raises(ConfigError, match=r"no-critic-hears.*no-listen hears none"):
+        dataclasses.replace(blind, model=dataclasses.replace(
+            blind.model, comm=dataclasses.replace(comm, listen=False)))
+
+
 def test_cpu_deviations_are_computed_and_every_one_has_a_reason():
     deviations = preset_deviations()
     missing = [path for path, (_, _, why) in deviations.items() if why is None]

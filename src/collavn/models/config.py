@@ -101,6 +101,11 @@ class CommConfig:
             ``ours`` without messages, to tell what its own memory gives from what its
             teammates' messages give (``collavn evaluate --mute`` cuts the links of a
             policy trained with them).
+        critic_hears: The critic reads the ω the actor reads (the default). ``False``
+            (``--model.comm.no-critic-hears``): the critic reads the ω the agent would
+            form from its own memory alone (as with ``listen=False``), while the actor
+            still hears its teammates — an ablation that tells whether teammates'
+            messages help learning through the value estimates.
     """
 
     variant: Annotated[CommVariant, tyro.conf.Suppress] = "memory"
@@ -114,6 +119,7 @@ class CommConfig:
     bytes_per_float: int = 4
     critic_gradient: bool = True
     listen: bool = added_later(True)
+    critic_hears: bool = added_later(True)
 
     def __post_init__(self) -> None:
         if self.memory_slots < 1 or self.store_interval < 1:

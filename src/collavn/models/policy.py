@@ -153,14 +153,15 @@ class AgentTower(FramePerception):
             s = torch.cat([s, explore_prior(prior).to(s.dtype)], dim=1)
         return (s,)
 
-    def core_inputs(self, o: Tensor, g: Tensor, s: Tensor, omega: Tensor
-                    ) -> tuple[Tensor, Tensor]:
+    def core_inputs(self, o: Tensor, g: Tensor, s: Tensor, omega: Tensor,
+                    critic_omega: Tensor) -> tuple[Tensor, Tensor]:
         """The input halves of the GRU cores, ``W_ih x + b_ih``.
 
-        For π(O, S, ω, g) and V(O, ω [, S, g]); they need no recurrent state, so a
-        replay computes every step at once.
+        For π(O, S, ω, g) and V(O, ω' [, S, g]), ω' the critic's ω (ω itself unless
+        ``CommConfig.critic_hears`` is off); they need no recurrent state, so a replay
+        computes every step at once.
         """
-        heard = omega if self.critic_gradient else omega.detach()
+        heard = critic_omega if self.critic_gradient else critic_omega.detach()
         critic_x = [o, heard] + ([s, g] if self.critic_full_input else [])
         return (F.linear(torch.cat([o, s, omega, g], dim=-1), self.actor_core.weight_ih,
                          self.actor_core.bias_ih),
@@ -582,9 +583,10 @@ class ActorCritic(nn.Module):
                              p["map_pose"], delta, starts, obs.get("free_space"),
                              obs.get("explore_action"))[0]
         # communication needs no GRU state: every step at once
-        messages, omega, talk = self._communicate(p["o"], s, state, starts, active)
+        messages, omega, critic_omega, talk = self._communicate(p["o"], s, state, starts,
+                                                                active)
         actor_in, critic_in = (x.unbind(0) for x in self._over_steps(
-            AgentTower.core_inputs, p["o"], p["g"], s, omega))
+            AgentTower.core_inputs, p["o"], p["g"], s, omega, critic_omega))
         actor_h, critic_h, actor_hs, critic_hs = state.actor_h, state.critic_h, [], []
         for t in range(steps):
             a_h, c_h = cleared(actor_h, t), cleared(critic_h, t)
@@ -610,7 +612,7 @@ class ActorCritic(nn.Module):
         return tuple(out.reshape(steps, e, *out.shape[1:]) for out in outs)
 
     def _communicate(self, o: Tensor, s: Tensor, state: AgentState, starts: Tensor,
-                     active: Tensor) -> tuple[list[Message], Tensor, AgentState]:
+                     active: Tensor) -> tuple[list[Message], Tensor, Tensor, AgentState]:
         """Request, store, match and select for ``T`` steps (``(T, E, N, ...)`` inputs).
 
         See :mod:`collavn.models.communication`. Nothing here is recurrent but the
@@ -623,8 +625,10 @@ class ActorCritic(nn.Module):
         loop).
 
         Returns:
-            Each step's message, ω ``(T, E, N, value_dim)``, and ``state`` with the
-            memory, counts and steps after the last step.
+            Each step's message, ω ``(T, E, N, value_dim)``, the critic's ω (the same
+            tensor unless ``CommConfig.critic_hears`` is off: then the ω of each agent's
+            own entries alone), and ``state`` with the memory, counts and steps after
+            the last step.
         """
         cfg = self.cfg.comm
         steps, e, n = starts.shape
@@ -633,7 +637,7 @@ class ActorCritic(nn.Module):
                            cfg.variant == "memory")
         if cfg.variant == "none":
             messages = [silent_message(active[t], 0, o.dtype) for t in range(steps)]
-            omega = o.new_zeros(steps, e, n, 0)
+            omega = critic_omega = o.new_zeros(steps, e, n, 0)
         else:
             x = torch.cat([o, s], dim=-1)
             key, value = self._over_steps(lambda t, x_: t.comm.key_value(x_), x)
@@ -652,10 +656,14 @@ class ActorCritic(nn.Module):
             parts = [f.unbind(0) for f in (msg.omega, msg.scores, msg.gates, msg.self_open,
                                            msg.links, msg.bytes_sent)]
             messages = [Message(*fields) for fields in zip(*parts, strict=True)]
-            omega = msg.omega
+            omega = critic_omega = msg.omega
+            if self.listen and not cfg.critic_hears:  # the match a deaf agent makes
+                critic_omega = match_and_select(query, bias, keys, values, matched, active,
+                                                cfg, teammates=False).omega
             state = replace(state, mem_keys=keys.step(-1)[:, :, :slots],
                             mem_values=values.step(-1)[:, :, :slots])
-        return messages, omega, replace(state, mem_count=plan.count[-1], steps=plan.steps)
+        return messages, omega, critic_omega, replace(state, mem_count=plan.count[-1],
+                                                      steps=plan.steps)
 
     def _dispatch(self, fn: Callable[..., tuple[Tensor, ...]],
                   *args: Tensor | None) -> tuple[Tensor, ...]:
