@@ -182,7 +182,8 @@ def test_demo_runs_end_to_end(tmp_path, capsys):
     assert list((tmp_path / "oracle").glob("*.gif"))
 
 
-def _untrained_checkpoint(path, method: str, seed: int = 0, listen: bool = True):
+def _untrained_checkpoint(path, method: str, seed: int = 0, listen: bool = True,
+                          actor_hears: bool = True):
     from dataclasses import replace
 
     import torch
@@ -192,7 +193,8 @@ def _untrained_checkpoint(path, method: str, seed: int = 0, listen: bool = True)
     from training_fixtures import tiny_config
 
     cfg = tiny_config(method).with_env(panorama_width=32, panorama_height=8, goal_size=8)
-    cfg = replace(cfg, model=replace(cfg.model, comm=replace(cfg.model.comm, listen=listen)))
+    cfg = replace(cfg, model=replace(cfg.model, comm=replace(
+        cfg.model.comm, listen=listen, actor_hears=actor_hears)))
     torch.manual_seed(seed)
     save_checkpoint(path, {"config": cfg.to_dict(), "iteration": 0,
                            "model": ActorCritic(cfg.model).state_dict()})
@@ -233,9 +235,18 @@ def test_evaluation_reports_communication_per_method(door_scene, tmp_path, capsy
     assert json.loads(capsys.readouterr().out)[deaf]["communication"] == muted
     assert ((tmp_path / "deaf" / "records.jsonl").read_text()
             == (tmp_path / "muted" / "records.jsonl").read_text())
+    # trained --model.comm.no-actor-hears (only its critic heard): it acts deaf
+    blind = str(_untrained_checkpoint(tmp_path / "blind.pt", "ours", seed=15,
+                                      actor_hears=False))
+    assert main(["evaluate", "--policy", blind, "--dataset", str(data), "--out",
+                 str(tmp_path / "blind"), "--json", *small]) == 0
+    assert json.loads(capsys.readouterr().out)[blind]["communication"] == muted
+    assert ((tmp_path / "blind" / "records.jsonl").read_text()
+            == (tmp_path / "muted" / "records.jsonl").read_text())
     for policy, why in (("random", "the random policy sends none"),
                         (str(tmp_path / "no-com.pt"), "has no communication"),
-                        (deaf, "no-listen: its agents hear no teammate")):
+                        (deaf, "no-listen: its agents hear no teammate"),
+                        (blind, "no-actor-hears: its actor hears no teammate")):
         # refused before --overwrite moves an earlier result aside
         assert main(["evaluate", "--policy", policy, "--mute", "--dataset", str(data),
                      "--out", str(tmp_path / "muted"), "--overwrite", *small]) == 2

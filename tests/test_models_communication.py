@@ -297,9 +297,10 @@ def test_a_muted_model_reads_only_its_own_memory_and_sends_nothing():
     assert torch.equal(run(deaf, 3, 1, e=2)[0].message.omega, out.message.omega)
 
 
-def test_a_critic_that_does_not_hear_values_as_a_muted_agent_while_the_actor_hears():
+def test_a_critic_or_an_actor_that_does_not_hear_is_the_muted_model_in_that_half():
     """``--model.comm.no-critic-hears``: the actor's ω and actions are the talking
-    model's, the critic's values are those of the same weights muted."""
+    model's, the critic's values are those of the same weights muted; and the other way
+    round with ``--model.comm.no-actor-hears``."""
     torch.manual_seed(0)
     model = ActorCritic(tiny()).eval()
     constant_scores(model, 1.0)  # every gate open: teammates' values reach every agent
@@ -317,6 +318,18 @@ def test_a_critic_that_does_not_hear_values_as_a_muted_agent_while_the_actor_hea
         assert not torch.allclose(out.value, talking[t].value, atol=1e-4)
     counts = communication_counts(outs[-1].message, torch.ones(2, 3, dtype=torch.bool))
     assert counts.received.all()
+    # the other arm (--model.comm.no-actor-hears): the muted model's actions and the
+    # talking model's values, and the messages the critic hears
+    torch.manual_seed(0)
+    deaf_actor = ActorCritic(tiny(actor_hears=False)).eval()
+    deaf_actor.load_state_dict(model.state_dict())
+    for t, out in enumerate(run(deaf_actor, 3, 3, e=2)):
+        torch.testing.assert_close(action_mean(out.dist), action_mean(muted[t].dist),
+                                   rtol=0, atol=1e-6)
+        assert not torch.allclose(action_mean(out.dist), action_mean(talking[t].dist),
+                                  atol=1e-4)
+        assert torch.equal(out.value, talking[t].value)
+        assert torch.equal(out.message.omega, talking[t].message.omega)
 
 
 @pytest.mark.parametrize("critic_gradient", [True, False])

@@ -136,24 +136,29 @@ def test_no_listen_needs_a_method_with_messages():
         dataclasses.replace(deaf, ppo=dataclasses.replace(deaf.ppo, message_floor=0.25))
 
 
-def test_no_critic_hears_needs_a_listening_method_with_messages():
+@pytest.mark.parametrize("who", ["critic", "actor"])
+def test_no_critic_or_actor_hears_needs_a_listening_method_with_messages(who):
     from collavn.models.config import CommConfig
 
+    field = f"{who}_hears"
     for method in ("no-com", "il"):
         cfg = preset_config("cpu", method=method)
-        with pytest.raises(ConfigError, match=r"no-critic-hears.*has none"):
+        with pytest.raises(ConfigError, match=rf"no-{who}-hears.*has none"):
             dataclasses.replace(cfg, model=dataclasses.replace(
-                cfg.model, comm=CommConfig(critic_hears=False)))
+                cfg.model, comm=CommConfig(**{field: False})))
     ours = preset_config("cpu", method="ours")
     d = ours.to_dict()
-    del d["model"]["comm"]["critic_hears"]  # written before the field: the critic hears
-    assert TrainConfig.from_dict(d) == ours and ours.model.comm.critic_hears
-    comm = dataclasses.replace(ours.model.comm, critic_hears=False)
-    blind = dataclasses.replace(ours, model=dataclasses.replace(ours.model, comm=comm))
-    assert TrainConfig.from_dict(blind.to_dict()) == blind
-    with pytest.raises(ConfigError, match=r"no-critic-hears.*no-listen hears none"):
-        dataclasses.replace(blind, model=dataclasses.replace(
-            blind.model, comm=dataclasses.replace(comm, listen=False)))
+    del d["model"]["comm"][field]  # written before the field: both hear
+    assert TrainConfig.from_dict(d) == ours and getattr(ours.model.comm, field)
+    comm = dataclasses.replace(ours.model.comm, **{field: False})
+    half = dataclasses.replace(ours, model=dataclasses.replace(ours.model, comm=comm))
+    assert TrainConfig.from_dict(half.to_dict()) == half
+    with pytest.raises(ConfigError, match=rf"no-{who}-hears.*no-listen hears none"):
+        dataclasses.replace(half, model=dataclasses.replace(
+            half.model, comm=dataclasses.replace(comm, listen=False)))
+    with pytest.raises(ConfigError, match=r"hears no teammate: that is --model.comm.no-l"):
+        dataclasses.replace(half, model=dataclasses.replace(half.model, comm=dataclasses.replace(
+            comm, critic_hears=False, actor_hears=False)))
 
 
 def test_cpu_deviations_are_computed_and_every_one_has_a_reason():

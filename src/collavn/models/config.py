@@ -106,6 +106,11 @@ class CommConfig:
             form from its own memory alone (as with ``listen=False``), while the actor
             still hears its teammates — an ablation that tells whether teammates'
             messages help learning through the value estimates.
+        actor_hears: The actor reads teammates' entries (the default). ``False``
+            (``--model.comm.no-actor-hears``): the actor reads the ω of its own memory
+            alone, while the critic hears its teammates — training-time information
+            only, so the policy acts as a deaf one and is evaluated so; the other arm of
+            the ``critic_hears`` ablation.
     """
 
     variant: Annotated[CommVariant, tyro.conf.Suppress] = "memory"
@@ -120,6 +125,7 @@ class CommConfig:
     critic_gradient: bool = True
     listen: bool = added_later(True)
     critic_hears: bool = added_later(True)
+    actor_hears: bool = added_later(True)
 
     def __post_init__(self) -> None:
         if self.memory_slots < 1 or self.store_interval < 1:

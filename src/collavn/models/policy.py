@@ -625,10 +625,11 @@ class ActorCritic(nn.Module):
         loop).
 
         Returns:
-            Each step's message, ω ``(T, E, N, value_dim)``, the critic's ω (the same
-            tensor unless ``CommConfig.critic_hears`` is off: then the ω of each agent's
-            own entries alone), and ``state`` with the memory, counts and steps after
-            the last step.
+            Each step's message (what teammates send, read by whichever of actor and
+            critic hears them), the actor's ω ``(T, E, N, value_dim)``, the critic's ω
+            (the same tensor unless ``CommConfig.critic_hears`` or ``actor_hears`` is
+            off: then that one is the ω of each agent's own entries alone), and
+            ``state`` with the memory, counts and steps after the last step.
         """
         cfg = self.cfg.comm
         steps, e, n = starts.shape
@@ -657,9 +658,13 @@ class ActorCritic(nn.Module):
                                            msg.links, msg.bytes_sent)]
             messages = [Message(*fields) for fields in zip(*parts, strict=True)]
             omega = critic_omega = msg.omega
-            if self.listen and not cfg.critic_hears:  # the match a deaf agent makes
-                critic_omega = match_and_select(query, bias, keys, values, matched, active,
-                                                cfg, teammates=False).omega
+            if self.listen and not (cfg.critic_hears and cfg.actor_hears):
+                deaf = match_and_select(query, bias, keys, values, matched, active, cfg,
+                                        teammates=False)  # the match a deaf agent makes
+                if not cfg.critic_hears:
+                    critic_omega = deaf.omega
+                if not cfg.actor_hears:
+                    omega = deaf.omega
             state = replace(state, mem_keys=keys.step(-1)[:, :, :slots],
                             mem_values=values.step(-1)[:, :, :slots])
         return messages, omega, critic_omega, replace(state, mem_count=plan.count[-1],

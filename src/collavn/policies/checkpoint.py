@@ -282,6 +282,10 @@ def refuse_silent(model_cfg: ModelConfig, path: str | Path) -> None:
     if not model_cfg.comm.listen:
         raise CheckpointError(f"--mute: checkpoint {path} was trained with "
                               f"--model.comm.no-listen: its agents hear no teammate already")
+    if not model_cfg.comm.actor_hears:
+        raise CheckpointError(f"--mute: checkpoint {path} was trained with "
+                              f"--model.comm.no-actor-hears: its actor hears no teammate "
+                              f"already (only its critic did, in training)")
 
 
 def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
@@ -289,7 +293,9 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
     """A checkpoint as an evaluation policy, plus the env settings it needs.
 
     ``mute`` cuts the links between teammates (an ablation; see
-    :attr:`ActorCritic.listen`).
+    :attr:`ActorCritic.listen`). A policy trained with ``CommConfig.actor_hears`` off
+    acts on its own memory alone: its links are cut too (its critic, which heard its
+    teammates in training, plays no part in acting).
 
     Returns:
         The policy and ``EnvConfig`` overrides (image sizes, depth).
@@ -299,7 +305,7 @@ def load_policy(path: str | Path, device: str = "cpu", stochastic: bool = False,
     if mute:
         refuse_silent(model_cfg, path)
     model = ActorCritic(model_cfg, device=device)  # listens as trained (CommConfig.listen)
-    if mute:
+    if mute or not model_cfg.comm.actor_hears:
         model.listen = False
     try:
         model.load_state_dict(payload["model"])

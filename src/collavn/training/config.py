@@ -429,13 +429,17 @@ class TrainConfig:
         if not self.model.comm.listen and self.method_spec.comm == "none":
             raise ConfigError(f"--model.comm.no-listen cuts the links between teammates; "
                               f"method {self.method!r} has none (use ours or no-mem)")
-        if not self.model.comm.critic_hears and (self.method_spec.comm == "none"
-                                                 or not self.model.comm.listen):
-            raise ConfigError("--model.comm.no-critic-hears keeps teammates' entries from "
-                              f"the critic; method {self.method!r} "
-                              + ("has none" if self.method_spec.comm == "none" else
-                                 "with --model.comm.no-listen hears none already")
-                              + " (use ours or no-mem, listening)")
+        comm = self.model.comm
+        for hears, who in ((comm.critic_hears, "critic"), (comm.actor_hears, "actor")):
+            if not hears and (self.method_spec.comm == "none" or not comm.listen):
+                raise ConfigError(f"--model.comm.no-{who}-hears keeps teammates' entries "
+                                  f"from the {who}; method {self.method!r} "
+                                  + ("has none" if self.method_spec.comm == "none" else
+                                     "with --model.comm.no-listen hears none already")
+                                  + " (use ours or no-mem, listening)")
+        if not (comm.critic_hears or comm.actor_hears):
+            raise ConfigError("--model.comm.no-critic-hears with --model.comm.no-actor-hears"
+                              " hears no teammate: that is --model.comm.no-listen")
         if not self.model.comm.listen and self.ppo.message_floor > 0:
             raise ConfigError("--ppo.message-floor pushes agents to hear a teammate; "
                               "--model.comm.no-listen cuts every link (use one of them)")
