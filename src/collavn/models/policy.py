@@ -158,8 +158,8 @@ class AgentTower(FramePerception):
         """The input halves of the GRU cores, ``W_ih x + b_ih``.
 
         For π(O, S, ω, g) and V(O, ω' [, S, g]), ω' the critic's ω (ω itself unless
-        ``CommConfig.critic_hears`` is off); they need no recurrent state, so a replay
-        computes every step at once.
+        ``CommConfig.critic_hears`` or ``actor_hears`` is off); they need no recurrent
+        state, so a replay computes every step at once.
         """
         heard = critic_omega if self.critic_gradient else critic_omega.detach()
         critic_x = [o, heard] + ([s, g] if self.critic_full_input else [])
