@@ -188,3 +188,36 @@ def test_a_no_listen_run_is_deaf_in_collection_and_in_the_update():
     assert torch.allclose(replay(), rollout.log_probs, atol=1e-5)
     run.model.listen = True
     assert not torch.allclose(replay(), rollout.log_probs, atol=1e-3)
+
+
+@pytest.mark.parametrize("half", ["critic_hears", "actor_hears"])
+def test_a_half_hearing_run_replays_its_collection_and_only_one_half_hears(half):
+    """``--model.comm.no-critic-hears`` / ``no-actor-hears``: PPO's replay gives the
+    collected log-probs and values; cutting every link leaves the deaf half as it is and
+    changes the half that hears."""
+    cfg = tiny_config(method="ours", rollout_steps=8)
+    cfg = dataclasses.replace(cfg, model=dataclasses.replace(
+        cfg.model, comm=dataclasses.replace(cfg.model.comm, **{half: False})))
+    torch.set_num_threads(1)
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    sync_point(run)
+    with torch.no_grad():  # every gate wide open: teammates' entries reach every agent
+        for tower in run.model.towers:
+            tower.comm.psi_bias.fill_(6.0)
+    rollout, stats = collect_rollout(run)
+    assert stats["comm/received_rate"] > 0.0
+
+    def replay():
+        with torch.no_grad():
+            return run.model.evaluate_actions(rollout.obs, rollout.initial_state,
+                                              rollout.episode_start, rollout.raw_actions,
+                                              rollout.percepts)
+
+    heard = replay()
+    assert torch.allclose(heard.log_prob, rollout.log_probs, atol=1e-5)
+    assert torch.allclose(heard.value, rollout.values, atol=1e-5)
+    run.model.listen = False
+    deaf = replay()
+    actor_deaf = half == "actor_hears"
+    assert torch.allclose(deaf.log_prob, heard.log_prob, atol=1e-5) == actor_deaf
+    assert torch.allclose(deaf.value, heard.value, atol=1e-5) != actor_deaf
