@@ -69,6 +69,22 @@ def masked_mean(x: Tensor, mask: Tensor) -> Tensor:
     return (x * m).sum() / m.sum().clamp(min=torch.finfo(x.dtype).tiny)
 
 
+def explained_variance(values: Tensor, returns: Tensor, mask: Tensor) -> float:
+    """How much of the returns the critic explains: ``1 − Var(R − V) / Var(R)``, masked.
+
+    1 when ``V = R``, 0 when ``V`` does no better than the returns' mean, below 0 when
+    worse. ``nan`` when the masked returns do not vary (nothing to explain).
+    """
+    m = mask.bool()
+    r = returns[m].double()
+    if r.numel() < 2:
+        return math.nan
+    var = float(r.var(unbiased=False))
+    if var == 0.0:
+        return math.nan
+    return 1.0 - float((r - values[m].double()).var(unbiased=False)) / var
+
+
 def message_floor_loss(margin: Tensor, mask: Tensor, floor: float, width: float) -> Tensor:
     """``mean relu(width − margin)`` over the ⌈floor·n⌉ largest of the ``n`` masked margins.
 

@@ -68,7 +68,7 @@ from collavn.training.imitation import (
 )
 from collavn.training.interrupt import StopRequest
 from collavn.training.map_training import MapTrainer, policy_parameters
-from collavn.training.ppo import comm_parameters, ppo_update
+from collavn.training.ppo import comm_parameters, explained_variance, ppo_update
 from collavn.training.rollout import Rollout, compute_gae
 
 CHECKPOINT = "checkpoint.pt"
@@ -480,8 +480,11 @@ def learn(run: Run, rollout: Rollout) -> dict[str, float]:
     stats = ppo_update(run.model, run.optimizer, rollout, advantages, returns, cfg.ppo,
                        run.generator, sync, critic_only=warmup, bc_weight=bc_weight)
     run.maps.train_owed()  # between updates: the next rollout is scored as collected
+    # the values the rollout was collected with, before this update moved the critic
+    explained = explained_variance(rollout.values, returns, rollout.active)
     return {f"loss/{k}": v for k, v in stats.__dict__.items()} | {
-        "loss/critic_warmup": float(warmup), "opt/action_std": action_std(run.model)}
+        "loss/critic_warmup": float(warmup), "loss/explained_variance": explained,
+        "opt/action_std": action_std(run.model)}
 
 
 def action_std(model: ActorCritic) -> float:
