@@ -166,28 +166,36 @@ def test_a_method_that_sends_nothing_refuses_the_floor(method):
 def test_a_no_listen_run_is_deaf_in_collection_and_in_the_update():
     """``--model.comm.no-listen``: nothing heard while collecting, and PPO's replay of
     the rollout is deaf too (its log-probs are the collected ones; hearing changes them)."""
+    run, rollout, stats = _open_gates_run(listen=False)
+    assert not run.model.listen
+    assert stats["comm/received_rate"] == 0.0 and stats["comm/when_rate"] > 0.0
+    assert torch.allclose(_replay(run, rollout).log_prob, rollout.log_probs, atol=1e-5)
+    run.model.listen = True
+    assert not torch.allclose(_replay(run, rollout).log_prob, rollout.log_probs, atol=1e-3)
+
+
+def _open_gates_run(**comm):
+    """A tiny ``ours`` run with these ``CommConfig`` fields, every gate wide open (ψ's
+    bias far above η: a teammate's entry reaches every linked agent), and one rollout."""
     cfg = tiny_config(method="ours", rollout_steps=8)
     cfg = dataclasses.replace(cfg, model=dataclasses.replace(
-        cfg.model, comm=dataclasses.replace(cfg.model.comm, listen=False)))
+        cfg.model, comm=dataclasses.replace(cfg.model.comm, **comm)))
     torch.set_num_threads(1)
     run = build_run(cfg, DistInfo(), torch.device("cpu"))
     sync_point(run)
-    assert not run.model.listen
-    with torch.no_grad():  # every gate wide open: a teammate would be heard if linked
+    with torch.no_grad():
         for tower in run.model.towers:
             tower.comm.psi_bias.fill_(6.0)
     rollout, stats = collect_rollout(run)
-    assert stats["comm/received_rate"] == 0.0 and stats["comm/when_rate"] > 0.0
+    return run, rollout, stats
 
-    def replay():
-        with torch.no_grad():
-            return run.model.evaluate_actions(rollout.obs, rollout.initial_state,
-                                              rollout.episode_start, rollout.raw_actions,
-                                              rollout.percepts).log_prob
 
-    assert torch.allclose(replay(), rollout.log_probs, atol=1e-5)
-    run.model.listen = True
-    assert not torch.allclose(replay(), rollout.log_probs, atol=1e-3)
+def _replay(run, rollout):
+    """PPO's replay of the rollout's stored inputs (log-probs and values), no gradient."""
+    with torch.no_grad():
+        return run.model.evaluate_actions(rollout.obs, rollout.initial_state,
+                                          rollout.episode_start, rollout.raw_actions,
+                                          rollout.percepts)
 
 
 @pytest.mark.parametrize("half", ["critic_hears", "actor_hears"])
@@ -195,29 +203,13 @@ def test_a_half_hearing_run_replays_its_collection_and_only_one_half_hears(half)
     """``--model.comm.no-critic-hears`` / ``no-actor-hears``: PPO's replay gives the
     collected log-probs and values; cutting every link leaves the deaf half as it is and
     changes the half that hears."""
-    cfg = tiny_config(method="ours", rollout_steps=8)
-    cfg = dataclasses.replace(cfg, model=dataclasses.replace(
-        cfg.model, comm=dataclasses.replace(cfg.model.comm, **{half: False})))
-    torch.set_num_threads(1)
-    run = build_run(cfg, DistInfo(), torch.device("cpu"))
-    sync_point(run)
-    with torch.no_grad():  # every gate wide open: teammates' entries reach every agent
-        for tower in run.model.towers:
-            tower.comm.psi_bias.fill_(6.0)
-    rollout, stats = collect_rollout(run)
+    run, rollout, stats = _open_gates_run(**{half: False})
     assert stats["comm/received_rate"] > 0.0
-
-    def replay():
-        with torch.no_grad():
-            return run.model.evaluate_actions(rollout.obs, rollout.initial_state,
-                                              rollout.episode_start, rollout.raw_actions,
-                                              rollout.percepts)
-
-    heard = replay()
+    heard = _replay(run, rollout)
     assert torch.allclose(heard.log_prob, rollout.log_probs, atol=1e-5)
     assert torch.allclose(heard.value, rollout.values, atol=1e-5)
     run.model.listen = False
-    deaf = replay()
+    deaf = _replay(run, rollout)
     actor_deaf = half == "actor_hears"
     assert torch.allclose(deaf.log_prob, heard.log_prob, atol=1e-5) == actor_deaf
     assert torch.allclose(deaf.value, heard.value, atol=1e-5) != actor_deaf
