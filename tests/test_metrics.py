@@ -116,10 +116,17 @@ def test_search_and_homing_split_by_hand():
     recs[2] = replace(recs[2], collisions=30)  # a success: its collisions do not count
     assert search_metrics(recs)["homing"] == pytest.approx(2 / 3)
     assert search_metrics(recs)["failed homing collisions"] == pytest.approx(7.0)
+    # failed, sighted or not: rows 0 (final 0.5 m, 4.0 m driven, 7 collisions), 1 (1.8,
+    # 3.0, 0) and 4 (4.5, 2.0, 0); row 5 failed too but is not measured
+    failure = search_metrics(recs)
+    assert failure["failed distance"] == pytest.approx(1.8)
+    assert failure["failed path"] == pytest.approx(3.0)
+    assert failure["failed collisions"] == pytest.approx(7 / 3)
     unmeasured = search_metrics(RECORDS)  # none measured
     assert unmeasured.pop("agents") == 0
     assert all(math.isnan(v) for v in unmeasured.values())
     table = search_table({"m": recs})
-    assert "| m | easy | 2 | 0.500 | 0.000 | 0.000 | 7.0 |" in table  # rows 0 (now failed), 1
-    assert "| m | hard | 1 | 0.000 | – | 0.000 | – |" in table  # row 5 is unmeasured
-    assert "| m | overall | 5 | 0.600 | 0.667 | 0.000 | 7.0 |" in table
+    # easy: rows 0 (now failed) and 1; hard: row 4 (row 5 is unmeasured)
+    assert "| m | easy | 2 | 0.500 | 0.000 | 0.000 | 7.0 | 1.15 | 3.5 | 3.5 |" in table
+    assert "| m | hard | 1 | 0.000 | – | 0.000 | – | 4.50 | 2.0 | 0.0 |" in table
+    assert "| m | overall | 5 | 0.600 | 0.667 | 0.000 | 7.0 | 1.80 | 3.0 | 2.3 |" in table

@@ -152,3 +152,50 @@ def test_sighted_steps_weigh_the_anchor_only_once_the_goal_was_in_sight(
     rollout.weights = None  # without weights: every step counts
     plain = ppo_loss(run.model, rollout, adv, ret, cfg.ppo, bc_weight=1.0)[1]["bc_loss"]
     assert plain == pytest.approx(-float(out.target_log_prob[active].mean()), rel=1e-5)
+
+
+def test_steps_since_collision_counts_up_to_the_window_and_restarts_on_a_collision():
+    from collavn.training.trainer import steps_since_collision
+
+    since = np.array([[3, 0, 1]])
+    hit = np.array([[False, False, True]])
+    assert steps_since_collision(since, hit, 3).tolist() == [[3, 1, 0]]
+    assert steps_since_collision(since, ~hit, 3).tolist() == [[0, 0, 2]]
+    assert since.tolist() == [[3, 0, 1]]  # a new array
+
+
+def test_blocked_steps_weigh_the_anchor_only_just_after_a_collision(
+        il_checkpoint, tmp_path, monkeypatch):
+    cfg = tiny_config(method="no-com", out=str(tmp_path / "ft"), rollout_steps=12
+                      ).with_run(init_from=str(il_checkpoint))
+    cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(
+        cfg.ppo, bc_coef=1.0, bc_target="init", bc_steps="blocked", bc_blocked_window=3))
+    assert not env_config(cfg).privileged  # the collision flags are the env's info
+    run = build_run(cfg, DistInfo(), torch.device("cpu"))
+    sync_point(run)
+    # the env reports collisions of agent 0 in env 0 on steps 2 and 4 only
+    step, calls = run.env.step, []
+
+    def stepped(actions):
+        obs, reward, terminated, truncated, info = step(actions)
+        info["collided"] = np.zeros_like(info["collided"])
+        info["collided"][0, 0] = len(calls) in (2, 4)
+        calls.append(int(obs["step"][0, 0]))
+        return obs, reward, terminated, truncated, info
+
+    monkeypatch.setattr(run.env, "step", stepped)
+    rollout, _ = collect_rollout(run)
+    assert rollout.weights is not None and len(calls) == cfg.ppo.rollout_steps
+    assert not rollout.episode_start[1:10, 0, 0].any()  # one episode over these steps
+    # weighed: steps 3, 4, 5 (after step 2's collision), 5, 6, 7 (after step 4's)
+    assert rollout.weights[:10, 0, 0].tolist() == [0, 0, 0, 1, 1, 1, 1, 1, 0, 0]
+    assert not rollout.weights[:, 1:].any() and not rollout.weights[:, 0, 1].any()
+    # the next rollout goes on counting from where this one stopped
+    assert run.since_collision is not None and run.since_collision[0, 0] == 3
+
+
+def test_blocked_window_is_a_positive_count():
+    with pytest.raises(ConfigError, match=r"--ppo\.bc-blocked-window"):
+        PPOConfig(bc_steps="blocked", bc_blocked_window=0)
+    with pytest.raises(ConfigError, match=r"--ppo\.bc-steps must be all, sighted or blocked"):
+        PPOConfig(bc_steps="bumped")  # type: ignore[arg-type]

@@ -392,6 +392,7 @@ def test_a_checkpoint_from_before_the_readout_loads_with_it_off(tmp_path):
     del config["imitation"]["belief_coef"]
     del config["ppo"]["bc_target"]
     del config["ppo"]["bc_steps"]
+    del config["ppo"]["bc_blocked_window"]
     save_checkpoint(tmp_path / "old.pt", {"config": config, "update": 0,
                                           "model": ActorCritic(model_cfg).state_dict()})
     policy, _ = load_policy(tmp_path / "old.pt")
@@ -402,6 +403,7 @@ def test_a_checkpoint_from_before_the_readout_loads_with_it_off(tmp_path):
     old = saved_config(load_checkpoint(tmp_path / "old.pt"), "old.pt")
     assert old.ppo.target_kl == 0.0 and old.imitation.belief_coef == 1.0
     assert old.ppo.bc_target == "expert" and old.ppo.bc_steps == "all"
+    assert old.ppo.bc_blocked_window == 3
     # one from before the ring readout had the pooled heads
     config = cfg.to_dict()
     del config["model"]["readout"]["ring"]

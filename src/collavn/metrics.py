@@ -143,17 +143,30 @@ def search_metrics(records: Sequence[AgentRecord]) -> dict[str, float]:
     empty. For scale: the goal-blind explorer homes on ~0.68 of easy val agents that
     sight their goal (by chance), the seeker (which switches to the shortest path at
     the first sighting) on ~0.98.
+
+    And how the failed agents (sighted or not) end: ``failed distance`` — their median
+    geodesic distance to the goal at the end (metres), ``failed path`` — the median
+    metres they drove, ``failed collisions`` — their mean collision steps. An agent
+    still searching ends far after a long drive; one stuck against what stands between
+    it and a goal it has found ends near, after a short drive and many collisions.
     """
     known = [(r, r.sighted_step) for r in records if r.sighted_step is not None]
     seen = [r for r, step in known if step >= 0]
     unseen = [r for r, step in known if step < 0]
     lost = [r for r in seen if not r.success]
+    failed = [r for r, _ in known if not r.success]
     return {"agents": float(len(known)),
             "sighted": len(seen) / len(known) if known else math.nan,
             "homing": success_rate(seen),
             "unsighted SR": success_rate(unseen),
             "failed homing collisions": float(_column(lost, "collisions").mean())
-            if lost else math.nan}
+            if lost else math.nan,
+            "failed distance": float(np.median(_column(failed, "final_distance")))
+            if failed else math.nan,
+            "failed path": float(np.median(_column(failed, "path_length")))
+            if failed else math.nan,
+            "failed collisions": float(_column(failed, "collisions").mean())
+            if failed else math.nan}
 
 
 def search_groups(records: Sequence[AgentRecord]) -> dict[str, dict[str, float]]:
@@ -166,7 +179,10 @@ def search_groups(records: Sequence[AgentRecord]) -> dict[str, dict[str, float]]
 SEARCH_COLUMNS = (("sighted", "goal sighted", ".3f"),
                   ("homing", "SR once sighted (homing)", ".3f"),
                   ("unsighted SR", "SR never sighted", ".3f"),
-                  ("failed homing collisions", "collision steps, homing failed", ".1f"))
+                  ("failed homing collisions", "collision steps, homing failed", ".1f"),
+                  ("failed distance", "failed: median m to goal", ".2f"),
+                  ("failed path", "failed: median m driven", ".1f"),
+                  ("failed collisions", "failed: collision steps", ".1f"))
 
 
 def search_table(records: Mapping[str, Sequence[AgentRecord]]) -> str:

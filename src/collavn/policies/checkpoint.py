@@ -130,6 +130,7 @@ LATER_FIELDS: dict[str, Any] = {
     "ppo.message_floor_coef": 1.0,
     "run.snapshot_every": 0,
     "ppo.end_std": 0.0,
+    "ppo.bc_blocked_window": 3,
 }
 
 

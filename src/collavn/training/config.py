@@ -143,15 +143,22 @@ class PPOConfig:
     frozen copy replayed over each rollout's stored features with its own recurrent
     state: an anchor that keeps the fine-tuned mean action near the one it started from
     where the reward does not pay to move it; no expert, no privileged observations)."""
-    bc_steps: Literal["all", "sighted"] = "all"
-    """The steps the behaviour-cloning term weighs: ``all`` active steps, or ``sighted``
+    bc_steps: Literal["all", "sighted", "blocked"] = "all"
+    """The steps the behaviour-cloning term weighs: ``all`` active steps; ``sighted``
     ones only — after the agent's goal has been in sight this episode (within
     ``--imitation.sight`` metres along a navigable straight line, the seeker's switch and
-    the evaluation's ``goal sighted``). The trainer reads the privileged poses for this,
-    the policy never does. With ``--ppo.bc-target init`` it anchors the homing the
-    ``--init-from`` policy learnt and leaves PPO free to change how it searches. The term
-    stays a mean over all active steps (searching ones add 0), so ``--ppo.bc-coef`` pulls
-    each homing step as hard as with ``all``."""
+    the evaluation's ``goal sighted``; the trainer reads the privileged poses for this,
+    the policy never does); or ``blocked`` ones only — the ``--ppo.bc-blocked-window``
+    steps after one on which the agent collided, in the same episode (the trainer reads
+    the env's collision flags, as it reads the reward). With ``--ppo.bc-target init``,
+    ``sighted`` anchors the homing the ``--init-from`` policy learnt and leaves PPO free
+    to change how it searches; ``blocked`` anchors how it gets away from what it drove
+    into and leaves PPO free everywhere else. The term stays a mean over all active
+    steps (the others add 0), so ``--ppo.bc-coef`` pulls each weighed step as hard as
+    with ``all``."""
+    bc_blocked_window: int = 3
+    """With ``--ppo.bc-steps blocked``: a step weighs when the agent collided on one of
+    the this-many steps before it (1 = only the step right after a collision)."""
     start_std: float = 0.0
     """Set the policy's σ (every action dimension) to this when a run starts, after
     ``--init-from`` (0 = keep the model's initial or the checkpoint's σ; a resumed run
@@ -185,8 +192,10 @@ class PPOConfig:
                               f"give --ppo.start-std too")
         if self.bc_target not in ("expert", "init"):
             raise ConfigError(f"--ppo.bc-target must be expert or init, got {self.bc_target!r}")
-        if self.bc_steps not in ("all", "sighted"):
-            raise ConfigError(f"--ppo.bc-steps must be all or sighted, got {self.bc_steps!r}")
+        if self.bc_steps not in ("all", "sighted", "blocked"):
+            raise ConfigError(f"--ppo.bc-steps must be all, sighted or blocked, got "
+                              f"{self.bc_steps!r}")
+        check_count("--ppo.bc-blocked-window", self.bc_blocked_window)
         if self.bc_decay > 1:
             raise ConfigError(f"--ppo.bc-decay must be in (0, 1], got {self.bc_decay}")
         check_number("--ppo.comm-lr-scale", self.comm_lr_scale, allow_minimum=True)

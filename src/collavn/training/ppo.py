@@ -107,7 +107,8 @@ def ppo_loss(model: ActorCritic, batch: Rollout, advantages: Tensor, returns: Te
     ``bc_weight`` > 0 adds ``bc_weight × −log π(a* | s)`` over active steps, ``a*`` the
     targets stored in ``batch.expert_actions`` (the expert's actions or the anchor's),
     each step's term times ``batch.weights`` when the rollout has them
-    (``--ppo.bc-steps sighted``: 1 once the goal was in sight, else 0).
+    (``--ppo.bc-steps sighted``: 1 once the goal was in sight, else 0; ``blocked``: 1
+    shortly after a collision, else 0).
     ``cfg.message_floor`` > 0 adds ``cfg.message_floor_coef ×``
     :func:`message_floor_loss` of the communication scores (not while ``critic_only``).
     """

@@ -57,7 +57,7 @@ class Rollout:
             :mod:`collavn.models.belief`), for the goal-belief head; ``None`` without it.
         weights: ``(T, E, N)`` per-step weights of ``il``'s likelihood
             (``--imitation.homing-weight``) or of PPO's behaviour-cloning term
-            (``--ppo.bc-steps sighted``); ``None``: every step weighs 1.
+            (``--ppo.bc-steps sighted`` or ``blocked``); ``None``: every step weighs 1.
     """
 
     obs: dict[str, Tensor]

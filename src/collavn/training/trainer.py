@@ -103,6 +103,9 @@ class Run:
     """The anchor's recurrent state after the last rollout it replayed."""
     sighted: np.ndarray | None = None
     """``(E, N)`` the goal has been in sight this episode (``--ppo.bc-steps sighted``)."""
+    since_collision: np.ndarray | None = None
+    """``(E, N)`` steps since the agent last collided this episode, at most the window
+    (``--ppo.bc-steps blocked``)."""
     started: float = field(default_factory=time.perf_counter)
 
     @property
@@ -136,6 +139,21 @@ def has_expert(cfg: TrainConfig) -> bool:
 def bc_on_sighted_steps(cfg: TrainConfig) -> bool:
     """PPO's behaviour-cloning term weighs only steps after the goal was in sight."""
     return cfg.ppo_clones and cfg.ppo.bc_steps == "sighted"
+
+
+def bc_on_blocked_steps(cfg: TrainConfig) -> bool:
+    """PPO's behaviour-cloning term weighs only steps shortly after a collision."""
+    return cfg.ppo_clones and cfg.ppo.bc_steps == "blocked"
+
+
+def steps_since_collision(since: np.ndarray, collided: np.ndarray, window: int) -> np.ndarray:
+    """Steps since each agent's last collision after one more step, capped at ``window``.
+
+    ``since`` counts before the step, ``collided`` ``(E, N)`` is the step's
+    ``info["collided"]``; ``window`` means "none within the window" (and a new episode's
+    start, which :func:`collect_rollout` sets). Returns a new array.
+    """
+    return np.where(collided, 0, np.minimum(since + 1, window))
 
 
 def has_anchor(cfg: TrainConfig) -> bool:
@@ -358,6 +376,9 @@ def sync_point(run: Run) -> None:
         run.anchor_state = run.anchor.initial_state(run.env.num_envs, run.env.num_agents)
     if bc_on_sighted_steps(run.cfg):
         run.sighted = np.zeros((run.env.num_envs, run.env.num_agents), dtype=bool)
+    if bc_on_blocked_steps(run.cfg):
+        run.since_collision = np.full((run.env.num_envs, run.env.num_agents),
+                                      run.cfg.ppo.bc_blocked_window, dtype=np.int64)
     run.returns = np.zeros((run.env.num_envs, run.env.num_agents))
     run.demos = deque(maxlen=run.cfg.imitation.buffer_rollouts)
 
@@ -379,6 +400,8 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     believing = imitating and bool(model.cfg.goal_belief)
     weighing = imitating and cfg.imitation.homing_weight != 1.0
     sighting = run.sighted is not None  # PPO's BC term weighs the sighted steps only
+    blocking = run.since_collision is not None  # … or the steps after a collision
+    window = cfg.ppo.bc_blocked_window
     homing: list[int] = []  # per step, active agents the expert homes (seeker only)
     comm, scores = CommStats(), ScoreTally()
     start = time.perf_counter()
@@ -393,7 +416,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
                 run.state, {k: out.percepts[k] for k in model.stored_percepts},
                 expert=(run.expert is not None or run.anchor is not None) and not imitating,
                 belief=believing,
-                weights=weighing or sighting)
+                weights=weighing or sighting or blocking)
         actions = out.action.cpu().numpy().astype(np.float64)
         stored = out.raw_action
         if run.expert is not None:
@@ -418,6 +441,10 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
                                          cfg.imitation.sight)
             assert rollout.weights is not None
             rollout.weights[t] = torch.as_tensor(run.sighted, device=device)
+        if run.since_collision is not None:  # a new episode forgets the last one's
+            run.since_collision[run.obs["step"] == 0] = window
+            assert rollout.weights is not None
+            rollout.weights[t] = torch.as_tensor(run.since_collision < window, device=device)
         rollout.insert(t, obs_t, start_t, stored, out.log_prob, out.value, out.percepts)
         if rollout.belief_labels is not None:
             rollout.belief_labels[t] = torch.as_tensor(belief_labels(
@@ -429,6 +456,9 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
         run.maps.observe(run.obs)
         run.obs, reward, terminated, truncated, info = run.env.step(actions)
         rollout.insert_outcome(t, reward, terminated, truncated)
+        if run.since_collision is not None:
+            run.since_collision = steps_since_collision(run.since_collision,
+                                                        info["collided"], window)
         track_episodes(run, reward, info)
         run.state = out.state
         obs_t = obs_to_torch(run.obs, keys, device)
