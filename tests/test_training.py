@@ -19,6 +19,7 @@ from collavn.training.ppo import critic_parameters, ppo_loss, ppo_update
 from collavn.training.presets import CPU_REASONS, preset_config, preset_deviations
 from collavn.training.rollout import compute_gae
 from collavn.training.trainer import (
+    ActionTally,
     ScoreTally,
     build_run,
     collect_rollout,
@@ -323,6 +324,39 @@ def test_score_tally_separates_own_and_teammate_scores_of_active_agents():
     alone = ScoreTally()
     alone.add(scores, torch.tensor([[True, False, False]]))
     assert set(alone.rates()) == {"own_score", "own_score_std"}
+
+
+def test_action_tally_averages_the_raw_actions_of_active_agents():
+    raw = torch.tensor([[[0.5, -1.5], [1.2, 0.5], [9.0, 9.0]]])
+    tally = ActionTally()
+    tally.add(raw, torch.tensor([[True, True, False]]))  # the third agent is done
+    tally.add(torch.tensor([[[0.1, -0.3], [0.0, 0.0], [9.0, 9.0]]]),
+              torch.tensor([[True, False, False]]))
+    rates = tally.rates()
+    assert rates["action/speed"] == pytest.approx((0.5 + 1.2 + 0.1) / 3)
+    assert rates["action/turn"] == pytest.approx((-1.5 + 0.5 - 0.3) / 3)
+    assert rates["action/abs_turn"] == pytest.approx((1.5 + 0.5 + 0.3) / 3)
+    assert rates["action/beyond_bounds"] == pytest.approx(2 / 6)  # −1.5 and 1.2
+    assert ActionTally().rates() == {}
+
+
+def test_training_logs_the_actions_it_took():
+    _, run, _ = _fixed_batch("no-com")
+    taken = []
+    act = run.model.act
+
+    def recorded(obs, state, start, deterministic=False):
+        out = act(obs, state, start, deterministic=deterministic)
+        taken.append(out.raw_action[obs["active"].bool()])
+        return out
+
+    run.model.act = recorded  # type: ignore[method-assign]
+    _, stats = collect_rollout(run)
+    a = torch.cat(taken).double()
+    assert stats["action/speed"] == pytest.approx(float(a[:, 0].mean()))
+    assert stats["action/turn"] == pytest.approx(float(a[:, 1].mean()))
+    assert stats["action/abs_turn"] == pytest.approx(float(a[:, 1].abs().mean()))
+    assert stats["action/beyond_bounds"] == pytest.approx(float((a.abs() > 1).double().mean()))
 
 
 def test_comm_lr_scale_sets_the_messages_apart_and_zero_freezes_them():

@@ -356,6 +356,43 @@ class ScoreTally:
         return out
 
 
+@dataclass
+class ActionTally:
+    """The raw (unclipped) actions the learner took over a rollout's active agent-steps.
+
+    PPO's are samples (the mean plus σ noise), ``il``'s its mean action. A mean that
+    drifts shows here before it shows in the success rate: ``action/turn`` (the signed
+    mean of a[1]) moving away from 0 is a policy that turns one way whatever it sees
+    (an ``ours`` run from ``il`` that ended spinning clockwise, its mean a[1] at −0.7
+    on val, went −0.08, −0.30, −0.56 at 61k, 184k and 307k agent-steps), and
+    ``action/beyond_bounds`` is the share of action components past ±1, where the env
+    clips them and PPO's ratio no longer sees the difference.
+    """
+
+    steps: int = 0
+    total: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    absolute: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    beyond: int = 0
+
+    def add(self, raw: torch.Tensor, active: torch.Tensor) -> None:
+        """One step's ``(E, N, 2)`` raw actions of the ``(E, N)`` active agents."""
+        a = raw[active.bool()].detach().double().cpu().numpy()
+        self.steps += a.shape[0]
+        self.total += a.sum(0)
+        self.absolute += np.abs(a).sum(0)
+        self.beyond += int((np.abs(a) > 1.0).sum())
+
+    def rates(self) -> dict[str, float]:
+        """``action/speed``, ``action/turn`` (signed means), ``action/abs_turn`` and
+        ``action/beyond_bounds``; empty without active steps."""
+        if not self.steps:
+            return {}
+        mean, absolute = self.total / self.steps, self.absolute / self.steps
+        return {"action/speed": float(mean[0]), "action/turn": float(mean[1]),
+                "action/abs_turn": float(absolute[1]),
+                "action/beyond_bounds": self.beyond / (2 * self.steps)}
+
+
 def sync_point(run: Run) -> None:
     """Re-derive every seed from (seed, rank, update) and start fresh episodes."""
     seed = run.info.seed(run.cfg.run.seed) + 7919 * run.iteration
@@ -403,7 +440,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     blocking = run.since_collision is not None  # … or the steps after a collision
     window = cfg.ppo.bc_blocked_window
     homing: list[int] = []  # per step, active agents the expert homes (seeker only)
-    comm, scores = CommStats(), ScoreTally()
+    comm, scores, taken = CommStats(), ScoreTally(), ActionTally()
     start = time.perf_counter()
     for t in range(cfg.ppo.rollout_steps):
         start_t = episode_start(run.obs, device)
@@ -451,6 +488,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
                 run.obs["world_pose"], run.obs["goal_position"], model.cfg.goal_belief),
                 device=device)
         comm.add(tally(out.message, obs_t["active"]))
+        taken.add(out.raw_action, obs_t["active"])
         if model.cfg.comm.variant != "none":
             scores.add(out.message.scores, obs_t["active"])
         run.maps.observe(run.obs)
@@ -468,7 +506,7 @@ def collect_rollout(run: Run) -> tuple[Rollout, dict[str, float]]:
     seconds = time.perf_counter() - start
     return rollout, {**{f"comm/{k}": v for k, v in comm.rates().items()},
                      **{f"comm/{k}": v for k, v in scores.rates().items()},
-                     **message_weight(model),
+                     **message_weight(model), **taken.rates(),
                      "perf/collect_seconds": seconds,
                      **({"imitation/beta": beta} if imitating else {}),
                      **({"imitation/homing": sum(homing) / max(float(rollout.active.sum()), 1.0)}
