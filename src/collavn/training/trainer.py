@@ -383,8 +383,11 @@ class ActionTally:
         self.beyond += int((np.abs(a) > 1.0).sum())
 
     def rates(self) -> dict[str, float]:
-        """``action/speed``, ``action/turn`` (signed means), ``action/abs_turn`` and
-        ``action/beyond_bounds``; empty without active steps."""
+        """The tally's scalars (empty without active steps).
+
+        ``action/speed``, ``action/turn`` (signed means), ``action/abs_turn`` and
+        ``action/beyond_bounds``.
+        """
         if not self.steps:
             return {}
         mean, absolute = self.total / self.steps, self.absolute / self.steps
