@@ -147,8 +147,9 @@ def search_metrics(records: Sequence[AgentRecord]) -> dict[str, float]:
     And how the failed agents (sighted or not) end: ``failed distance`` — their median
     geodesic distance to the goal at the end (metres), ``failed path`` — the median
     metres they drove, ``failed collisions`` — their mean collision steps. An agent
-    still searching ends far after a long drive; one stuck against what stands between
-    it and a goal it has found ends near, after a short drive and many collisions.
+    still searching ends far after a long drive; one that stalls near its goal (pressed
+    against an obstacle, or jerking on the spot) ends near, after a short drive and many
+    collisions.
     """
     known = [(r, r.sighted_step) for r in records if r.sighted_step is not None]
     seen = [r for r, step in known if step >= 0]

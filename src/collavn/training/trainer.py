@@ -363,10 +363,10 @@ class ActionTally:
     PPO's are samples (the mean plus σ noise), ``il``'s its mean action. A mean that
     drifts shows here before it shows in the success rate: ``action/turn`` (the signed
     mean of a[1]) moving away from 0 is a policy that turns one way whatever it sees
-    (an ``ours`` run from ``il`` that ended spinning clockwise, its mean a[1] at −0.7
-    on val, went −0.08, −0.30, −0.56 at 61k, 184k and 307k agent-steps), and
-    ``action/beyond_bounds`` is the share of action components past ±1, where the env
-    clips them and PPO's ratio no longer sees the difference.
+    (docs/learning-log.md, 2026-12-08: an ``ours`` run from ``il`` whose mean turn on val
+    drifted to −0.7 through PPO, spinning clockwise), and ``action/beyond_bounds`` is
+    the share of action components past ±1, where the env clips them and PPO's ratio no
+    longer sees the difference.
     """
 
     steps: int = 0
