@@ -353,6 +353,7 @@ def test_training_logs_the_actions_it_took():
     run.model.act = recorded  # type: ignore[method-assign]
     _, stats = collect_rollout(run)
     a = torch.cat(taken).double()
+    assert bool((a.abs() > 1).any())  # some samples past the clip: raw, not clipped, counted
     assert stats["action/speed"] == pytest.approx(float(a[:, 0].mean()))
     assert stats["action/turn"] == pytest.approx(float(a[:, 1].mean()))
     assert stats["action/abs_turn"] == pytest.approx(float(a[:, 1].abs().mean()))
